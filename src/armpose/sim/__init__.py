@@ -1,0 +1,1 @@
+"""PyBullet simulation: scenes, domain randomisation and TinyRenderer cameras (no GPU)."""

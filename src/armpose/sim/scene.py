@@ -1,0 +1,136 @@
+"""Domain-randomised PyBullet scenes around a robot whose base frame is the world origin.
+
+Each scene re-draws floor, walls, table, distractor objects and, sometimes, another
+robot in the background; each frame re-draws the lighting. Every draw comes from
+the ``numpy`` generator passed in, so a seed fixes the scene.
+"""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pybullet as pb
+
+from armpose.sim.textures import procedural_texture
+
+
+def _uniform(rng: np.random.Generator, lo_hi) -> float:
+    lo, hi = lo_hi
+    return float(rng.uniform(lo, hi))
+
+
+class SceneRandomizer:
+    """Builds and re-builds the background of one PyBullet client.
+
+    ``cfg`` is ``params['render']['randomize']``; ``reach`` is the robot's reach in metres.
+    """
+
+    def __init__(self, client: int, rng: np.random.Generator, cfg: dict, reach: float, max_camera_distance: float):
+        self.client, self.rng, self.cfg, self.reach = client, rng, cfg, reach
+        self.wall_distance = max_camera_distance + reach + 0.5  # walls never stand between camera and robot
+        self.bodies: list[int] = []
+        self.support: int | None = None
+        self.floor_z = 0.0
+        self.textures = self._make_textures(int(cfg["background"].get("textures", 8)))
+
+    def _make_textures(self, n: int) -> list[int]:
+        if not self.cfg["background"]["enabled"]:
+            return []
+        folder = Path(tempfile.mkdtemp(prefix="armpose-tex-"))
+        ids = []
+        for i in range(n):
+            path = folder / f"tex{i}.png"
+            cv2.imwrite(str(path), procedural_texture(self.rng))
+            ids.append(pb.loadTexture(str(path), physicsClientId=self.client))
+        return ids
+
+    def _color(self) -> list[float]:
+        return [*self.rng.uniform(0.05, 1.0, 3).tolist(), 1.0]
+
+    def _box(self, half, pos, collide: bool = False, yaw: float = 0.0) -> int:
+        c = self.client
+        vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=self._color(), physicsClientId=c)
+        col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=c) if collide else -1
+        body = pb.createMultiBody(0, col, vis, pos, pb.getQuaternionFromEuler([0, 0, yaw]), physicsClientId=c)
+        if self.textures and self.rng.uniform() < 0.7:
+            tex = self.textures[self.rng.integers(len(self.textures))]
+            pb.changeVisualShape(body, -1, textureUniqueId=tex, rgbaColor=[1, 1, 1, 1], physicsClientId=c)
+        self.bodies.append(body)
+        return body
+
+    def _distractor(self, pos) -> None:
+        c, kind = self.client, self.rng.integers(3)
+        size = self.rng.uniform(0.04, 0.25)
+        if kind == 0:
+            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=self.rng.uniform(0.03, 0.25, 3).tolist(),
+                                       rgbaColor=self._color(), physicsClientId=c)
+        elif kind == 1:
+            vis = pb.createVisualShape(pb.GEOM_SPHERE, radius=size, rgbaColor=self._color(), physicsClientId=c)
+        else:
+            vis = pb.createVisualShape(pb.GEOM_CYLINDER, radius=size, length=self.rng.uniform(0.1, 0.8),
+                                       rgbaColor=self._color(), physicsClientId=c)
+        orn = pb.getQuaternionFromEuler(self.rng.uniform(-np.pi, np.pi, 3).tolist())
+        self.bodies.append(pb.createMultiBody(0, -1, vis, pos, orn, physicsClientId=c))
+
+    def _ring_position(self, r_min: float, r_max: float, z: float) -> list[float]:
+        ang, r = self.rng.uniform(0, 2 * np.pi), self.rng.uniform(r_min, r_max)
+        return [r * np.cos(ang), r * np.sin(ang), z]
+
+    def new_scene(self) -> int:
+        """Replace the background; returns the support body (table or floor) the robot stands on."""
+        for body in self.bodies:
+            pb.removeBody(body, physicsClientId=self.client)
+        self.bodies = []
+        bg = self.cfg["background"]
+        table = bg["enabled"] and self.rng.uniform() < bg.get("table_prob", 0.5)
+        floor_z = -_uniform(self.rng, bg.get("table_height", [0.6, 0.9])) if table else 0.0
+        self.floor_z = floor_z
+        self.support = self._box([15, 15, 0.05], [0, 0, floor_z - 0.05], collide=not table)
+        if table:
+            hx, hy = self.rng.uniform(0.3, 0.9, 2)
+            off = self.rng.uniform(-0.2, 0.2, 2)
+            self.support = self._box([hx, hy, -floor_z / 2], [off[0], off[1], floor_z / 2], collide=True)
+        if not bg["enabled"]:
+            return self.support
+        for _ in range(int(self.rng.integers(bg["walls"][0], bg["walls"][1] + 1))):
+            ang = self.rng.uniform(0, 2 * np.pi)
+            dist = self.wall_distance + self.rng.uniform(0.0, 4.0)
+            self._box([0.05, self.rng.uniform(2, 8), 3.0], [dist * np.cos(ang), dist * np.sin(ang), floor_z + 3.0],
+                      yaw=ang)
+        for _ in range(int(self.rng.integers(bg["distractors"][0], bg["distractors"][1] + 1))):
+            self._distractor(self._ring_position(0.4 + 0.5 * self.reach, self.wall_distance,
+                                                 floor_z + self.rng.uniform(0, 1.8)))
+        return self.support
+
+    def lighting(self) -> dict:
+        """Keyword arguments for ``getCameraImage``: light direction, colour and coefficients."""
+        cfg = self.cfg["lighting"]
+        if not cfg["enabled"]:
+            return {"lightDirection": [1, 1, 2], "lightAmbientCoeff": 0.6, "lightDiffuseCoeff": 0.6,
+                    "lightSpecularCoeff": 0.1, "shadow": 0}
+        az, el = self.rng.uniform(0, 2 * np.pi), self.rng.uniform(0.2, 1.4)
+        jitter = cfg.get("color_jitter", 0.2)
+        return {
+            "lightDirection": [np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)],
+            "lightColor": np.clip(1.0 - self.rng.uniform(0, jitter, 3), 0, 1).tolist(),
+            "lightAmbientCoeff": _uniform(self.rng, cfg["ambient"]),
+            "lightDiffuseCoeff": _uniform(self.rng, cfg["diffuse"]),
+            "lightSpecularCoeff": _uniform(self.rng, cfg["specular"]),
+            "shadow": int(self.rng.uniform() < cfg.get("shadow_prob", 0.0)),
+        }
+
+
+def camera_effects(img: np.ndarray, rng: np.random.Generator, cfg: dict) -> np.ndarray:
+    """Sensor noise, blur and exposure jitter on an RGB uint8 image (``cfg``: ``camera_noise``)."""
+    if not cfg["enabled"]:
+        return img
+    out = img.astype(np.float32)
+    out = out * rng.uniform(*cfg.get("gain", [0.8, 1.2])) + rng.uniform(*cfg.get("offset", [-15, 15]))
+    if rng.uniform() < cfg.get("blur_prob", 0.3):
+        out = cv2.GaussianBlur(out, (0, 0), _uniform(rng, cfg.get("blur_sigma", [0.5, 1.5])))
+    std = _uniform(rng, cfg.get("gaussian_std", [0, 6]))
+    if std > 0:
+        out = out + rng.normal(0, std, out.shape).astype(np.float32)
+    return np.clip(out, 0, 255).astype(np.uint8)
