@@ -1,0 +1,1 @@
+"""Automatic labels from a recording: the paper's MoveIt step, redone with PyBullet and pytorch-kinematics."""

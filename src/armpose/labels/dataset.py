@@ -1,0 +1,67 @@
+"""The labelled dataset on disk: one ``.npy`` array per field, memory-mappable, plus ``index.json``.
+
+Layout of ``data/labels/``::
+
+    images.npy (N, h, w, 3) uint8    masks.npy (N, h, w) uint8      joints.npy (N, J, 3) float32
+    joint_valid.npy (N, J) bool      base.npy (N, 3) float32        distance.npy (N,) float32
+    intrinsics.npy (N, 4) float32    frame.npy (N,) int64           robot.npy (N,) int64
+    recording.npy (N,) int64         source.npy (N,) uint8          split.npy (N,) uint8 (0 train, 1 test)
+    index.json                       robot types, recordings, counts, skipped problems
+
+The folder is built beside the old one and swapped in by renames, so a reader never sees
+a half-written dataset; ``index.json`` is written last.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from armpose.io import atomic_save_npy, atomic_write_json
+
+ARRAYS = ("images", "masks", "joints", "joint_valid", "base", "distance", "intrinsics", "frame",
+          "robot", "recording", "source", "split")
+SOURCE_CODES = {"synthetic": 0, "recorded": 1}
+
+
+def split_for(name: str, source: str, n: int, seed: int, test_fraction: float) -> np.ndarray:
+    """0/1 (train/test) per frame: drawn per frame for synthetic recordings, per recording
+    for recorded ones, from a generator seeded by ``seed`` and the recording's name."""
+    rng = np.random.default_rng([seed, 2, zlib.crc32(name.encode())])
+    if source == "recorded":
+        return np.full(n, int(rng.uniform() < test_fraction), np.uint8)
+    return (rng.uniform(size=n) < test_fraction).astype(np.uint8)
+
+
+def write_dataset(out: Path, parts: list[dict], index: dict) -> None:
+    """Concatenate per-recording ``parts`` (dicts of arrays) into ``out`` atomically."""
+    out = Path(out)
+    tmp = out.with_name(f".{out.name}.tmp")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    for name in ARRAYS:
+        atomic_save_npy(tmp / f"{name}.npy", np.concatenate([p[name] for p in parts]))
+    atomic_write_json(tmp / "index.json", index)
+    old = out.with_name(f".{out.name}.old")
+    if out.exists():
+        if old.exists():
+            shutil.rmtree(old)
+        out.rename(old)
+    tmp.rename(out)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+def load_dataset(folder: Path, mmap: bool = True) -> tuple[dict[str, np.ndarray], dict]:
+    """The arrays (memory-mapped by default) and the index of a labelled dataset."""
+    folder = Path(folder)
+    index_path = folder / "index.json"
+    if not index_path.exists():
+        raise FileNotFoundError(f"{index_path}: no finished labelled dataset here (run `armpose labels`)")
+    index = json.loads(index_path.read_text())
+    arrays = {name: np.load(folder / f"{name}.npy", mmap_mode="r" if mmap else None) for name in ARRAYS}
+    return arrays, index

@@ -1,0 +1,77 @@
+"""The labelled dataset of a tiny rendered project: joints on the mask, splits, determinism, resume."""
+import json
+import shutil
+
+import cv2
+import numpy as np
+
+from armpose.labels.dataset import ARRAYS, load_dataset, split_for
+from armpose.stages import labels
+
+
+def joints_near_mask(arrays, tol_px: float = 3.0) -> np.ndarray:
+    """Per frame: True if every projected joint inside the image lies within ``tol_px`` of the mask."""
+    ok = np.ones(len(arrays["frame"]), bool)
+    for i in range(len(ok)):
+        mask = np.asarray(arrays["masks"][i]).astype(np.uint8)
+        dist = cv2.distanceTransform(1 - mask, cv2.DIST_L2, 5)  # pixels to the nearest mask pixel
+        fx, fy, cx, cy = arrays["intrinsics"][i]
+        pts = arrays["joints"][i][arrays["joint_valid"][i]]
+        u, v = fx * pts[:, 0] / pts[:, 2] + cx, fy * pts[:, 1] / pts[:, 2] + cy
+        inside = (u >= 0) & (u <= mask.shape[1] - 1) & (v >= 0) & (v <= mask.shape[0] - 1)
+        d = dist[np.round(v[inside]).astype(int), np.round(u[inside]).astype(int)]
+        ok[i] = bool((d <= tol_px).all())
+    return ok
+
+
+def test_projected_joints_lie_on_the_mask(tiny_project):
+    root, _ = tiny_project
+    arrays, index = load_dataset(root / "data" / "labels")
+    assert index["num_frames"] == 60
+    assert joints_near_mask(arrays).mean() >= 0.99
+
+
+def test_dataset_shapes_and_classes(tiny_project):
+    root, params = tiny_project
+    arrays, index = load_dataset(root / "data" / "labels")
+    n = index["num_frames"]
+    assert arrays["images"].shape == (n, 212, 256, 3) and arrays["images"].dtype == np.uint8
+    assert arrays["masks"].shape == (n, 212, 256) and set(np.unique(arrays["masks"])) <= {0, 1}
+    assert arrays["joints"].shape == (n, 7, 3)
+    counts = np.bincount(arrays["robot"], minlength=5)
+    assert counts.tolist() == [12] * 5
+    assert (arrays["joint_valid"].sum(1) == np.where(arrays["robot"] < 3, 6, 7)).all()
+    assert (arrays["base"][:, 2] > 0).all(), "robot base behind the camera"
+    assert index["num_train"] + index["num_test"] == n
+
+
+def test_split_is_per_frame_for_synthetic_and_per_recording_for_recorded():
+    synthetic = split_for("data/render/ur5/ur5_000", "synthetic", 2000, 2019, 0.2)
+    assert 0.15 < synthetic.mean() < 0.25
+    np.testing.assert_array_equal(synthetic, split_for("data/render/ur5/ur5_000", "synthetic", 2000, 2019, 0.2))
+    recorded = [split_for(f"data/recorded/session_{k}", "recorded", 50, 2019, 0.2) for k in range(40)]
+    assert all(len(set(r.tolist())) == 1 for r in recorded), "a recorded session was split across train/test"
+    assert 0 < np.mean([r[0] for r in recorded]) < 1
+
+
+def test_same_recordings_give_byte_identical_labels(tiny_project, tmp_path):
+    root, params = tiny_project
+    shutil.copytree(root / "data" / "render", tmp_path / "data" / "render")
+    labels.run(params, tmp_path)
+    for name in ARRAYS:
+        a = (root / "data" / "labels" / f"{name}.npy").read_bytes()
+        b = (tmp_path / "data" / "labels" / f"{name}.npy").read_bytes()
+        assert a == b, name
+
+
+def test_labels_resume_from_the_cache(tiny_project, tmp_path, monkeypatch):
+    root, params = tiny_project
+    shutil.copytree(root / "data", tmp_path / "data")
+    calls = []
+    import armpose.stages.labels as stage
+    real = stage.label_recording
+    monkeypatch.setattr(stage, "label_recording", lambda *a, **k: calls.append(a) or real(*a, **k))
+    p = json.loads(json.dumps(params))
+    p["base"]["num_workers"] = 1
+    labels.run(p, tmp_path)
+    assert calls == [], "unchanged recordings were labelled again"

@@ -1,0 +1,48 @@
+"""End to end: ``dvc repro`` on tiny params in a temporary copy of the project."""
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+
+from armpose.config import project_root, write_params
+from armpose.labels.dataset import load_dataset
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _sh(cmd: str, cwd: Path) -> str:
+    res = subprocess.run(cmd, shell=True, cwd=cwd, capture_output=True, text=True)
+    assert res.returncode == 0, f"{cmd}\n{res.stdout}\n{res.stderr}"
+    return res.stdout + res.stderr
+
+
+def test_dvc_repro_runs_every_stage_and_then_does_nothing(tmp_path, tiny_params):
+    work = tmp_path / "proj"
+    work.mkdir()
+    for item in ("dvc.yaml", "src", "profiles"):
+        src = REPO / item
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, work / item)
+    params = tiny_params(frames=4, workers=2)
+    write_params(params, work / "params.yaml")
+    _sh("git init -q && git config user.email t@t && git config user.name t && dvc init -q "
+        "&& dvc config core.analytics false && dvc config core.check_update false", work)
+    _sh("dvc repro", work)
+    arrays, index = load_dataset(work / "data" / "labels")
+    assert index["num_frames"] == 20 and arrays["images"].shape[0] == 20
+    before = {p.name: p.read_bytes() for p in (work / "data" / "labels").glob("*.npy")}
+    out = _sh("dvc repro labels", work)
+    assert "didn't change" in out or "up to date" in out, out
+    assert {p.name: p.read_bytes() for p in (work / "data" / "labels").glob("*.npy")} == before
+    status = _sh("dvc status", work)
+    assert "up to date" in status, status
+
+
+def test_project_root_is_the_dvc_working_directory(tmp_path, monkeypatch):
+    (tmp_path / "dvc.yaml").write_text("stages: {}\n")
+    (tmp_path / "params.yaml").write_text("base: {}\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("ARMPOSE_ROOT", raising=False)
+    assert project_root() == tmp_path.resolve()
+    monkeypatch.chdir(REPO / "src")
+    assert project_root() == REPO
