@@ -23,13 +23,12 @@ from armpose.stages import labels, render
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames-per-robot", type=int, default=60)
+    ap.add_argument("--frames-per-robot", type=int, default=200)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", default=str(project_root() / "results" / "bench_data.json"))
     args = ap.parse_args()
     params = profile_params("default")
     params["render"]["frames_per_robot"] = {r: args.frames_per_robot for r in params["base"]["robot_types"]}
-    params["render"]["frames_per_recording"] = args.frames_per_robot // 2
     params["base"]["num_workers"] = args.workers
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()

@@ -29,7 +29,10 @@ def run_jobs(fn: Callable, jobs: Sequence, workers: int, weight: Callable = lamb
                 results[i] = fn(job)
                 bar.update(weight(job))
             return results
-        ctx = mp.get_context("spawn")
+        # fork starts workers in milliseconds with every module already imported (torch
+        # re-initialises its CPU thread pool after fork, as DataLoader workers rely on);
+        # spawn where fork does not exist
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
         with ctx.Pool(min(workers, len(jobs)), initializer=_init_worker) as pool:
             for i, res in pool.imap_unordered(_indexed(fn), list(enumerate(jobs))):
                 results[i] = res

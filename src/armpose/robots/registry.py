@@ -47,6 +47,7 @@ class RobotSpec:
     fixed_joints: dict[str, float]
     reach: float
     appearance: Appearance
+    render_max_faces: int = 4000  # triangles per visual mesh for rendering; 0 = full meshes
 
     @property
     def num_joints(self) -> int:
@@ -62,6 +63,11 @@ class RobotSpec:
 
     def urdf_bytes(self) -> bytes:
         return self.urdf_path().read_bytes()
+
+    def render_urdf_path(self) -> Path:
+        """The URDF PyBullet renders: visual meshes simplified to ``render_max_faces`` (cached)."""
+        from armpose.robots.meshes import render_urdf
+        return render_urdf(self.urdf_path(), self.render_max_faces)
 
 
 def source_root(source: str) -> Path:
@@ -135,6 +141,7 @@ def spec_from_dict(cfg: dict[str, Any]) -> RobotSpec:
         joint_limits=tuple((float(lo), float(hi)) for lo, hi in cfg["joint_limits"]),
         fixed_joints={k: float(v) for k, v in (cfg.get("fixed_joints") or {}).items()},
         reach=float(cfg.get("reach", 1.0)),
+        render_max_faces=int(cfg.get("render_max_faces", 4000)),
         appearance=Appearance(
             default_color=tuple(app["default_color"]) if app.get("default_color") else None,
             link_colors={k: tuple(v) for k, v in (app.get("link_colors") or {}).items()},

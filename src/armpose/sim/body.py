@@ -15,16 +15,20 @@ SELF_COLLISION_FLAGS = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_E
 
 
 class RobotBody:
-    """One robot instance in PyBullet client ``client``."""
+    """One robot instance in PyBullet client ``client``.
+
+    Visual meshes are the simplified ones of :meth:`RobotSpec.render_urdf_path` unless
+    ``full_meshes``; collision meshes are always the URDF's own."""
 
     def __init__(self, client: int, spec: RobotSpec, kin: Kinematics | None = None,
-                 T_world_base: np.ndarray | None = None, self_collision: bool = False):
+                 T_world_base: np.ndarray | None = None, self_collision: bool = False, full_meshes: bool = False):
         self.client, self.spec = client, spec
         kin = kin or Kinematics(spec)
         self._root_T_base = kin.root_T_base()
         T_world_root = (np.eye(4) if T_world_base is None else T_world_base) @ invert(self._root_T_base)
         flags = pb.URDF_ENABLE_CACHED_GRAPHICS_SHAPES | (SELF_COLLISION_FLAGS if self_collision else 0)
-        self.id = pb.loadURDF(str(spec.urdf_path()), T_world_root[:3, 3].tolist(),
+        urdf = spec.urdf_path() if full_meshes else spec.render_urdf_path()
+        self.id = pb.loadURDF(str(urdf), T_world_root[:3, 3].tolist(),
                               matrix_to_quat(T_world_root[:3, :3]).tolist(), useFixedBase=True,
                               flags=flags, physicsClientId=client)
         n = pb.getNumJoints(self.id, physicsClientId=client)

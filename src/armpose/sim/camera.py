@@ -10,6 +10,7 @@ import numpy as np
 from armpose.geometry import Camera, invert
 
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+NEAR, FAR = 0.05, 20.0  # clipping planes, metres
 
 
 def view_matrix(T_world_cam: np.ndarray) -> list[float]:
@@ -18,7 +19,7 @@ def view_matrix(T_world_cam: np.ndarray) -> list[float]:
     return T_gl_world.T.reshape(-1).tolist()
 
 
-def projection_matrix(cam: Camera, near: float = 0.05, far: float = 20.0) -> list[float]:
+def projection_matrix(cam: Camera, near: float = NEAR, far: float = FAR) -> list[float]:
     """OpenGL projection for pinhole ``cam``: pixel (i, j)'s centre is at (u, v) = (i, j).
 
     The principal-point terms match PyBullet's TinyRenderer rasterisation, which puts

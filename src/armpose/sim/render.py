@@ -20,7 +20,8 @@ from armpose.recording import RecordingMeta, write_frame, write_tables
 from armpose.robots.kinematics import Kinematics
 from armpose.robots.registry import get_robot
 from armpose.sim.body import RobotBody
-from armpose.sim.camera import projection_matrix, view_matrix
+from armpose.sim.background import composite, depth_from_buffer, pixel_rays, render_planes
+from armpose.sim.camera import FAR, NEAR, projection_matrix, view_matrix
 from armpose.sim.sampling import collision_free_configuration, sample_camera_pose
 from armpose.sim.scene import SceneRandomizer, camera_effects
 
@@ -100,6 +101,7 @@ def render_recording(job: RenderJob) -> int:
         scene = SceneRandomizer(client, rng, rcfg, spec.reach, max(job.cfg["camera"]["distance"]))
         other = _load_other_robot(client, job, rng)
         proj = projection_matrix(camera)
+        rays = pixel_rays(camera)
         joints, poses = np.zeros((job.num_frames, spec.num_joints)), np.zeros((job.num_frames, 7))
         support = None
         for i in range(job.num_frames):
@@ -113,10 +115,14 @@ def render_recording(job: RenderJob) -> int:
             q = collision_free_configuration(body, support, rng)
             points = np.vstack([np.zeros((1, 3)), kin.joint_positions(q[None])[0]])
             T_base_cam = sample_camera_pose(points, camera, job.cfg["camera"], rng)
-            _, _, rgba, _, _ = pb.getCameraImage(
+            light = scene.lighting()
+            _, _, rgba, buf, _ = pb.getCameraImage(
                 camera.width, camera.height, view_matrix(T_base_cam), proj, renderer=pb.ER_TINY_RENDERER,
-                flags=pb.ER_NO_SEGMENTATION_MASK, physicsClientId=client, **scene.lighting())
-            rgb = np.asarray(rgba, dtype=np.uint8).reshape(camera.height, camera.width, 4)[..., :3]
+                flags=pb.ER_NO_SEGMENTATION_MASK, physicsClientId=client, **light)
+            fg = np.asarray(rgba, dtype=np.uint8).reshape(camera.height, camera.width, 4)[..., :3]
+            fg_depth = depth_from_buffer(np.asarray(buf, np.float32).reshape(camera.height, camera.width), NEAR, FAR)
+            bg, bg_depth = render_planes(scene.planes, scene.sky, camera, rays, T_base_cam, light)
+            rgb = composite(fg, fg_depth, bg, bg_depth)
             write_frame(tmp, i, camera_effects(rgb, rng, rcfg["camera_noise"]))
             joints[i] = q
             poses[i, :3], poses[i, 3:] = T_base_cam[:3, 3], matrix_to_quat(T_base_cam[:3, :3])

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pybullet as pb
 
+from armpose.sim.background import Plane
 from armpose.sim.textures import procedural_texture
 
 
@@ -24,6 +25,9 @@ def _uniform(rng: np.random.Generator, lo_hi) -> float:
 class SceneRandomizer:
     """Builds and re-builds the background of one PyBullet client.
 
+    Floor and walls are :class:`~armpose.sim.background.Plane` records (``self.planes``,
+    ray-cast in numpy); table, distractors and other robots are PyBullet bodies.
+
     ``cfg`` is ``params['render']['randomize']``; ``reach`` is the robot's reach in metres.
     """
 
@@ -33,18 +37,28 @@ class SceneRandomizer:
         self.bodies: list[int] = []
         self.support: int | None = None
         self.floor_z = 0.0
-        self.textures = self._make_textures(int(cfg["background"].get("textures", 8)))
+        self.planes: list[Plane] = []
+        self.sky = np.full(3, 200.0)
+        self.images, self.textures = self._make_textures(int(cfg["background"].get("textures", 8)))
 
-    def _make_textures(self, n: int) -> list[int]:
+    def _make_textures(self, n: int) -> tuple[list[np.ndarray], list[int]]:
+        """``n`` procedural textures: float32 RGB arrays (for planes) and PyBullet texture ids."""
         if not self.cfg["background"]["enabled"]:
-            return []
-        folder = Path(tempfile.mkdtemp(prefix="armpose-tex-"))
-        ids = []
-        for i in range(n):
-            path = folder / f"tex{i}.png"
-            cv2.imwrite(str(path), procedural_texture(self.rng))
-            ids.append(pb.loadTexture(str(path), physicsClientId=self.client))
-        return ids
+            return [np.full((8, 8, 3), 160.0, np.float32)], []
+        images, ids = [], []
+        with tempfile.TemporaryDirectory(prefix="armpose-tex-") as folder:  # PyBullet copies the pixels
+            for i in range(n):
+                path = Path(folder) / f"tex{i}.png"
+                img = procedural_texture(self.rng)
+                cv2.imwrite(str(path), img[..., ::-1])
+                images.append(img.astype(np.float32))
+                ids.append(pb.loadTexture(str(path), physicsClientId=self.client))
+        return images, ids
+
+    def _plane(self, normal, offset: float, axes, z_max: float = np.inf) -> Plane:
+        tex = self.images[self.rng.integers(len(self.images))] * self.rng.uniform(0.6, 1.2, 3).astype(np.float32)
+        return Plane(np.asarray(normal, float), float(offset), tuple(np.asarray(a, float) for a in axes),
+                     tex, float(self.rng.uniform(0.3, 3.0)), z_max)
 
     def _color(self) -> list[float]:
         return [*self.rng.uniform(0.05, 1.0, 3).tolist(), 1.0]
@@ -87,7 +101,17 @@ class SceneRandomizer:
         table = bg["enabled"] and self.rng.uniform() < bg.get("table_prob", 0.5)
         floor_z = -_uniform(self.rng, bg.get("table_height", [0.6, 0.9])) if table else 0.0
         self.floor_z = floor_z
-        self.support = self._box([15, 15, 0.05], [0, 0, floor_z - 0.05], collide=not table)
+        # collision only: the floor is drawn as a Plane; a tiny far-away visual keeps PyBullet from
+        # drawing the collision box (which it does for bodies without a visual shape)
+        hidden = pb.createVisualShape(pb.GEOM_SPHERE, radius=1e-4, visualFramePosition=[0, 0, -100],
+                                      physicsClientId=self.client)
+        floor = pb.createMultiBody(0, pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[15, 15, 0.05],
+                                                              physicsClientId=self.client),
+                                   hidden, [0, 0, floor_z - 0.05], physicsClientId=self.client)
+        self.bodies.append(floor)
+        self.support = floor
+        self.planes = [self._plane([0, 0, 1], floor_z, ([1, 0, 0], [0, 1, 0]))]
+        self.sky = self.rng.uniform(60, 255, 3)
         if table:
             hx, hy = self.rng.uniform(0.3, 0.9, 2)
             off = self.rng.uniform(-0.2, 0.2, 2)
@@ -97,8 +121,9 @@ class SceneRandomizer:
         for _ in range(int(self.rng.integers(bg["walls"][0], bg["walls"][1] + 1))):
             ang = self.rng.uniform(0, 2 * np.pi)
             dist = self.wall_distance + self.rng.uniform(0.0, 4.0)
-            self._box([0.05, self.rng.uniform(2, 8), 3.0], [dist * np.cos(ang), dist * np.sin(ang), floor_z + 3.0],
-                      yaw=ang)
+            inward = -np.array([np.cos(ang), np.sin(ang), 0.0])
+            self.planes.append(self._plane(inward, -dist, ([-np.sin(ang), np.cos(ang), 0], [0, 0, 1]),
+                                           z_max=floor_z + self.rng.uniform(2.0, 8.0)))
         for _ in range(int(self.rng.integers(bg["distractors"][0], bg["distractors"][1] + 1))):
             self._distractor(self._ring_position(0.4 + 0.5 * self.reach, self.wall_distance,
                                                  floor_z + self.rng.uniform(0, 1.8)))
@@ -123,14 +148,18 @@ class SceneRandomizer:
 
 
 def camera_effects(img: np.ndarray, rng: np.random.Generator, cfg: dict) -> np.ndarray:
-    """Sensor noise, blur and exposure jitter on an RGB uint8 image (``cfg``: ``camera_noise``)."""
+    """Exposure (gain, offset), blur and Gaussian sensor noise on an RGB uint8 image
+    (``cfg`` is ``params['render']['randomize']['camera_noise']``)."""
     if not cfg["enabled"]:
         return img
-    out = img.astype(np.float32)
-    out = out * rng.uniform(*cfg.get("gain", [0.8, 1.2])) + rng.uniform(*cfg.get("offset", [-15, 15]))
+    out = cv2.convertScaleAbs(img, alpha=rng.uniform(*cfg.get("gain", [0.8, 1.2])),
+                              beta=rng.uniform(*cfg.get("offset", [-15, 15])))
     if rng.uniform() < cfg.get("blur_prob", 0.3):
         out = cv2.GaussianBlur(out, (0, 0), _uniform(rng, cfg.get("blur_sigma", [0.5, 1.5])))
     std = _uniform(rng, cfg.get("gaussian_std", [0, 6]))
     if std > 0:
-        out = out + rng.normal(0, std, out.shape).astype(np.float32)
-    return np.clip(out, 0, 255).astype(np.uint8)
+        cv2.setRNGSeed(int(rng.integers(2**31)))  # OpenCV's generator, seeded from ours: deterministic
+        noise = np.empty(out.shape, np.int16)
+        cv2.randn(noise, 0.0, std)
+        out = cv2.add(out, noise, dtype=cv2.CV_8U)
+    return out
