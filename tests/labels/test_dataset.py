@@ -2,33 +2,30 @@
 import json
 import shutil
 
-import cv2
 import numpy as np
 
 from armpose.labels.dataset import ARRAYS, load_dataset, split_for
+from armpose.labels.quality import joints_near_mask
 from armpose.stages import labels
-
-
-def joints_near_mask(arrays, tol_px: float = 3.0) -> np.ndarray:
-    """Per frame: True if every projected joint inside the image lies within ``tol_px`` of the mask."""
-    ok = np.ones(len(arrays["frame"]), bool)
-    for i in range(len(ok)):
-        mask = np.asarray(arrays["masks"][i]).astype(np.uint8)
-        dist = cv2.distanceTransform(1 - mask, cv2.DIST_L2, 5)  # pixels to the nearest mask pixel
-        fx, fy, cx, cy = arrays["intrinsics"][i]
-        pts = arrays["joints"][i][arrays["joint_valid"][i]]
-        u, v = fx * pts[:, 0] / pts[:, 2] + cx, fy * pts[:, 1] / pts[:, 2] + cy
-        inside = (u >= 0) & (u <= mask.shape[1] - 1) & (v >= 0) & (v <= mask.shape[0] - 1)
-        d = dist[np.round(v[inside]).astype(int), np.round(u[inside]).astype(int)]
-        ok[i] = bool((d <= tol_px).all())
-    return ok
 
 
 def test_projected_joints_lie_on_the_mask(tiny_project):
     root, _ = tiny_project
     arrays, index = load_dataset(root / "data" / "labels")
     assert index["num_frames"] == 60
-    assert joints_near_mask(arrays).mean() >= 0.99
+    on_mask = joints_near_mask(arrays["masks"], arrays["joints"], arrays["joint_valid"], arrays["intrinsics"])
+    assert on_mask.mean() >= 0.99
+    assert index["joints_on_mask_fraction"] == on_mask.mean()
+
+
+def test_joints_off_the_mask_are_detected():
+    mask = np.zeros((1, 20, 20), np.uint8)
+    mask[0, 5:10, 5:10] = 1
+    joints = np.array([[[0.0, 0.0, 1.0], [0.5, 0.5, 1.0]]])  # projects to (7, 7) and (17, 17)
+    valid = np.array([[True, True]])
+    K = np.array([[10.0, 10.0, 7.0, 7.0]])
+    assert not joints_near_mask(mask, joints, valid, K)[0]
+    assert joints_near_mask(mask, joints, np.array([[True, False]]), K)[0]
 
 
 def test_dataset_shapes_and_classes(tiny_project):

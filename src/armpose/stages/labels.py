@@ -19,6 +19,7 @@ from armpose.config import load_params, project_root
 from armpose.io import atomic_write_bytes
 from armpose.labels.compute import label_recording
 from armpose.labels.dataset import SOURCE_CODES, split_for, write_dataset
+from armpose.labels.quality import joints_near_mask
 from armpose.parallel import run_jobs
 from armpose.recording import find_recordings
 
@@ -91,10 +92,16 @@ def run(params: dict, root: Path | None = None) -> dict:
         index_recs.append({"name": name, "robot": summ["robot"], "source": summ["source"], "frames": n})
         skipped += summ["skipped"]
     split = np.concatenate([p["split"] for p in parts])
+    on_mask = np.concatenate([joints_near_mask(p["masks"], p["joints"], p["joint_valid"], p["intrinsics"])
+                              for p in parts])
     index = {"robot_types": base["robot_types"], "max_joints": base["max_joints"],
              "input_size": base["input_size"], "recordings": index_recs, "num_frames": int(split.size),
              "num_train": int((split == 0).sum()), "num_test": int((split == 1).sum()),
+             "joints_on_mask_fraction": float(on_mask.mean()) if on_mask.size else None,
              "num_skipped": len(skipped), "skipped": skipped}
+    if on_mask.size and on_mask.mean() < 0.99:
+        log.warning("only %.1f %% of frames have every projected joint within 3 px of the mask: "
+                    "check camera poses and joint names", 100 * on_mask.mean())
     out = root / "data" / "labels"
     write_dataset(out, parts, index)
     used = {j.cache for j in jobs}
