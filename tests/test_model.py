@@ -1,0 +1,147 @@
+"""The multi-objective CNN: output contract, layer groups and freezing for transfer learning."""
+import pytest
+import torch
+from torch import nn
+
+from armpose.losses import multi_objective_loss
+from armpose.model import (GROUPS, ArmPoseNet, build_model, count_parameters, group_modules,
+                           group_parameters, set_trainable)
+
+H, W = 48, 64  # small images keep the tests fast; the model works at any size
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """Tiny tensors: one thread is as fast, and far faster when other jobs share the CPU."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def tiny_batch(b: int = 4, h: int = H, w: int = W, seed: int = 0) -> dict:
+    g = torch.Generator().manual_seed(seed)
+    valid = torch.ones(b, 7, dtype=torch.bool)
+    valid[0, 6] = False
+    return {"image": torch.rand(b, 3, h, w, generator=g),
+            "mask": (torch.rand(b, h, w, generator=g) < 0.2).to(torch.uint8),
+            "joints": torch.randn(b, 7, 3, generator=g) * 0.3 + torch.tensor([0.0, 0.0, 2.5]),
+            "joint_valid": valid,
+            "base": torch.randn(b, 3, generator=g) * 0.3 + torch.tensor([0.0, 0.3, 2.5]),
+            "robot": torch.arange(b) % 5}
+
+
+def tiny_model(seed: int = 0) -> ArmPoseNet:
+    torch.manual_seed(seed)
+    return ArmPoseNet(width=8)
+
+
+def test_output_shapes_and_dtypes_at_input_size():
+    model = ArmPoseNet().eval()
+    with torch.inference_mode():
+        out = model(torch.rand(2, 3, 212, 256))
+    assert out["mask_logits"].shape == (2, 1, 212, 256)
+    assert out["joints"].shape == (2, 7, 3)
+    assert out["base"].shape == (2, 3)
+    assert out["type_logits"].shape == (2, 5)
+    for v in out.values():
+        assert v.dtype == torch.float32 and torch.isfinite(v).all()
+
+
+def test_channels_last_gives_the_same_outputs():
+    model = tiny_model().eval()
+    x = torch.rand(2, 3, H, W)
+    with torch.inference_mode():
+        ref = model(x)
+        out = model.to(memory_format=torch.channels_last)(x.contiguous(memory_format=torch.channels_last))
+    for k in ref:
+        torch.testing.assert_close(out[k], ref[k], rtol=1e-4, atol=1e-5)
+
+
+def test_untrained_points_sit_at_the_depth_prior_in_front_of_the_camera():
+    model = tiny_model().eval()
+    with torch.inference_mode():
+        out = model(torch.rand(2, 3, H, W))
+    torch.testing.assert_close(out["joints"][..., 2], torch.full((2, 7), 2.5))
+    torch.testing.assert_close(out["base"][:, 2], torch.full((2,), 2.5))
+    assert (out["joints"][..., :2].abs() < 2.5 * 0.42).all()  # inside the field of view
+
+
+def test_build_model_reads_config():
+    model = build_model({"width": 8, "max_joints": 6, "num_types": 3})
+    with torch.inference_mode():
+        out = model.eval()(torch.rand(1, 3, H, W))
+    assert out["joints"].shape == (1, 6, 3) and out["type_logits"].shape == (1, 3)
+    assert count_parameters(build_model({})) == count_parameters(ArmPoseNet())
+    with pytest.raises(ValueError, match="widht"):
+        build_model({"widht": 8})
+
+
+def test_groups_partition_the_parameters():
+    model = tiny_model()
+    ids = [id(p) for g in GROUPS for p in group_parameters(model, g)]
+    assert len(ids) == len(set(ids))
+    assert set(ids) == {id(p) for p in model.parameters()}
+    assert sum(count_parameters(model, g) for g in GROUPS) == count_parameters(model)
+    assert isinstance(group_modules(model, "heads.joints"), nn.Module)
+    assert set(map(id, group_parameters(model, "heads.joints"))) < set(map(id, group_parameters(model, "heads")))
+    with pytest.raises(KeyError):
+        group_parameters(model, "trunk")
+    with pytest.raises(KeyError):
+        group_parameters(model, "decoder")
+
+
+def test_gradients_reach_every_group():
+    model = tiny_model().train()
+    batch = tiny_batch()
+    multi_objective_loss(model(batch["image"]), batch, {})["total"].backward()
+    for name, p in model.named_parameters():
+        assert p.grad is not None, name
+    for g in GROUPS:
+        assert sum(float(p.grad.abs().sum()) for p in group_parameters(model, g)) > 0, g
+
+
+def _state(model: nn.Module) -> dict[str, torch.Tensor]:
+    return {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+
+@pytest.mark.parametrize("trainable", [["heads"], ["trunk.late", "heads"], ["mask_decoder", "heads.base"]])
+def test_set_trainable_freezes_exactly_the_other_groups(trainable):
+    model = tiny_model()
+    set_trainable(model, trainable)
+    trained = {n for g in trainable for n, _ in group_modules(model, g).named_parameters(prefix=g)}
+    assert {n for n, p in model.named_parameters() if p.requires_grad} == trained
+
+    before = _state(model)
+    # the optimizer sees every parameter, with weight decay: frozen ones must still not move
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-2, weight_decay=0.1)
+    for step in range(3):
+        model.train()
+        batch = tiny_batch(seed=step)
+        opt.zero_grad(set_to_none=True)
+        multi_objective_loss(model(batch["image"]), batch, {})["total"].backward()
+        opt.step()
+    after = _state(model)
+
+    def in_trained(key: str) -> bool:
+        return any(key == g or key.startswith(g + ".") for g in trainable)
+    for k in before:  # parameters and BatchNorm buffers alike
+        if not in_trained(k):
+            assert torch.equal(before[k], after[k]), f"frozen {k} changed"
+    changed = [k for k in before if in_trained(k) and not torch.equal(before[k], after[k])]
+    assert any(k.endswith("running_mean") for k in changed), "trainable BatchNorm statistics did not update"
+    assert any(k.endswith("weight") for k in changed), "trainable weights did not update"
+
+
+def test_frozen_batchnorm_stays_in_eval_mode_after_train():
+    model = tiny_model()
+    set_trainable(model, ["heads"])
+    model.train()
+    for name, m in model.named_modules():
+        if isinstance(m, nn.BatchNorm2d):
+            assert m.training == name.startswith("heads."), name
+    set_trainable(model, list(GROUPS))
+    model.train()
+    assert all(m.training for m in model.modules())
+    model.eval()
+    assert not any(m.training for m in model.modules())
