@@ -1,0 +1,276 @@
+"""The training loop shared by every training stage (pretrain, transfer stages, full training).
+
+Read top to bottom: set up (device, DDP, seeds), data, model, ``init_from``, freeze list,
+optimiser and schedule, then the loop: forward, loss terms, backward, step, log, validate,
+checkpoint, stop on plateau. Fine-tuning is the same loop with another ``init_from``, another
+learning rate and another list of trainable groups.
+
+Runs unchanged under ``torchrun --nproc_per_node=K`` (DistributedDataParallel; gloo on CPU,
+nccl on GPU). Checkpoints are plain dicts (model, optimizer, scheduler, step, stage, config,
+plateau state) written atomically; a run started again with ``init_from`` unchanged resumes
+from ``<out>/last.pt`` and reaches the same weights as an uninterrupted run.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from tqdm import tqdm
+
+from armpose.data import InfiniteBatches, LabelledFrames, make_loader, transfer_set, validation_subset
+from armpose.io import atomic_write_bytes
+from armpose.labels.dataset import load_dataset
+from armpose.losses import multi_objective_loss
+from armpose.model import build_model, set_trainable
+
+log = logging.getLogger(__name__)
+HISTORY_FIELDS = ["step", "stage", "wall_s", "lr", "total", "mask", "joints", "base", "type",
+                  "val_total", "val_joint_cm", "val_base_cm", "val_type_acc", "val_mask_acc"]
+
+
+# ----------------------------------------------------------------------------- set-up
+def setup_distributed() -> tuple[int, int, torch.device]:
+    """(rank, world size, device). Under torchrun, joins the process group."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    if torch.cuda.is_available():
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        torch.cuda.set_device(device)
+    else:
+        device = torch.device("cpu")
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    return rank, world, device
+
+
+def save_checkpoint(path: Path, model, optimizer, scheduler, step: int, stage: str, config: dict,
+                    extra: dict | None = None) -> None:
+    """Atomically write a plain-dict checkpoint (loadable with ``torch.load(weights_only=True)``)."""
+    state = {"model": unwrap(model).state_dict(), "optimizer": optimizer.state_dict() if optimizer else None,
+             "scheduler": scheduler.state_dict() if scheduler else None, "step": step, "stage": stage,
+             "config": config, "extra": extra or {}, "format": 1}
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_checkpoint(path: Path) -> dict:
+    """A checkpoint dict; raises ValueError naming the file if it is not an armpose checkpoint."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means a bad file
+        raise ValueError(f"{path}: not a readable checkpoint ({err})") from err
+    if not isinstance(ckpt, dict) or ckpt.get("format") != 1 or "model" not in ckpt:
+        raise ValueError(f"{path}: not an armpose checkpoint of format 1")
+    return ckpt
+
+
+def unwrap(model):
+    return model.module if hasattr(model, "module") else model
+
+
+def ranks_weight_difference(model) -> float:
+    """Largest absolute difference between this rank's weights and rank 0's (0 when in sync)."""
+    diff = torch.zeros(1)
+    for p in model.state_dict().values():
+        if not p.is_floating_point():
+            continue
+        ref = p.detach().clone()
+        dist.broadcast(ref, src=0)
+        diff = torch.maximum(diff, (p.detach() - ref).abs().max().cpu().reshape(1))
+    dist.all_reduce(diff, op=dist.ReduceOp.MAX)
+    return float(diff)
+
+
+def cosine_lr(step: int, max_steps: int, lr: float, lr_min: float, warmup: int) -> float:
+    """Learning rate at ``step``: linear warm-up, then cosine decay from ``lr`` towards ``lr_min``."""
+    if step < warmup:
+        return lr * (step + 1) / warmup
+    progress = min(1.0, (step - warmup) / max(1, max_steps - warmup))
+    return lr_min + 0.5 * (lr - lr_min) * (1 + math.cos(math.pi * progress))
+
+
+class Plateau:
+    """Stops when the smoothed training loss has not improved by a relative ``delta`` for
+    ``patience`` steps. State is a plain dict, saved in checkpoints."""
+
+    def __init__(self, delta: float, patience: int, ema: float = 0.98, state: dict | None = None):
+        self.delta, self.patience, self.ema = delta, patience, ema
+        self.state = state or {"smooth": None, "best": None, "best_step": 0}
+
+    def update(self, step: int, loss: float) -> bool:
+        s = self.state
+        s["smooth"] = loss if s["smooth"] is None else self.ema * s["smooth"] + (1 - self.ema) * loss
+        if s["best"] is None or s["smooth"] < s["best"] * (1 - self.delta):
+            s["best"], s["best_step"] = s["smooth"], step
+        return step - s["best_step"] >= self.patience
+
+
+RUNTIME_KEYS = {"threads", "num_workers", "checkpoint_every", "resume"}
+
+
+def _identity(config: dict) -> dict:
+    """The settings that decide a run's result (not threads, workers or checkpoint cadence)."""
+    return {part: {k: v for k, v in config[part].items() if k not in RUNTIME_KEYS} if isinstance(config[part], dict)
+            else config[part] for part in config}
+
+
+# ----------------------------------------------------------------------------- evaluation
+@torch.no_grad()
+def validate(model, loader, weights: dict, device) -> dict:
+    """Mean loss terms and quick metrics over ``loader``: median joint and base error (cm),
+    type accuracy and pixel mask accuracy."""
+    model.eval()
+    sums: dict[str, float] = {}
+    n, joint_err, base_err, type_ok, mask_acc = 0, [], [], [], []
+    for batch in loader:
+        batch = {k: v.to(device) for k, v in batch.items()}
+        out = model(batch["image"])
+        losses = multi_objective_loss(out, batch, weights)
+        b = batch["image"].shape[0]
+        for k, v in losses.items():
+            sums[k] = sums.get(k, 0.0) + float(v) * b
+        n += b
+        err = torch.linalg.norm(out["joints"] - batch["joints"], dim=-1)
+        joint_err.append(err[batch["joint_valid"]].cpu())
+        base_err.append(torch.linalg.norm(out["base"] - batch["base"], dim=-1).cpu())
+        type_ok.append((out["type_logits"].argmax(1) == batch["robot"]).cpu())
+        pred = out["mask_logits"][:, 0] > 0
+        mask_acc.append((pred == (batch["mask"] > 0.5)).float().mean(dim=(1, 2)).cpu())
+    if n == 0:
+        return {}
+    return {"val_total": sums["total"] / n,
+            "val_joint_cm": 100 * float(torch.cat(joint_err).median()),
+            "val_base_cm": 100 * float(torch.cat(base_err).median()),
+            "val_type_acc": float(torch.cat(type_ok).float().mean()),
+            "val_mask_acc": float(torch.cat(mask_acc).mean())}
+
+
+def write_history(path: Path, rows: list[dict]) -> None:
+    """The per-step history as CSV (the data behind the paper's Fig. 6b), atomically."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=HISTORY_FIELDS, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write_bytes(path, buf.getvalue().encode())
+
+
+# ----------------------------------------------------------------------------- the loop
+def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> dict:
+    """Train one stage. ``cfg`` is the stage's params section, ``base`` the shared one.
+
+    Writes ``out_dir/last.pt`` (resumable), ``out_dir/model.pt`` (final), ``history.csv``.
+    Returns the final validation metrics plus timing.
+    """
+    rank, world, device = setup_distributed()
+    master = rank == 0
+    torch.manual_seed(int(base["seed"]))
+    if device.type == "cpu":
+        torch.set_num_threads(max(1, int(cfg.get("threads", os.cpu_count() or 1)) // world))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    # data: the stage's robot types, N per type from the train split (None = all)
+    arrays, index = load_dataset(data_dir)
+    types = [base["robot_types"].index(r) for r in cfg["robots"]]
+    seed = int(base["seed"]) + int(cfg.get("seed_offset", 0))
+    rows = transfer_set(arrays, "train", types, cfg.get("per_type"), seed)
+    val_rows = validation_subset(arrays, "test", int(cfg.get("val_per_type", 50)), seed, robots=types)
+    train_ds = LabelledFrames(data_dir, rows, augment=cfg.get("augment"), seed=seed)
+    val_ds = LabelledFrames(data_dir, val_rows)
+    bs = int(cfg["batch_size"]) // world
+    loader = make_loader(train_ds, bs, shuffle=True, seed=seed, num_workers=int(cfg.get("num_workers", 1)),
+                         drop_last=True, distributed=world > 1)
+    val_loader = make_loader(val_ds, bs, shuffle=False, seed=seed, num_workers=0, drop_last=False)
+
+    # model: init_from (scratch | resume | checkpoint path), then the freeze list
+    model = build_model(base.get("model", {})).to(device)
+    last = out_dir / "last.pt"
+    ckpt = None
+    config = {"stage": stage, "cfg": cfg, "base": base}
+    if last.exists() and cfg.get("resume", True):
+        ckpt = load_checkpoint(last)
+        if ckpt["stage"] != stage or _identity(ckpt["config"]) != _identity(config):
+            log.warning("%s: %s was written with other settings; starting afresh", stage, last)
+            ckpt = None
+    if ckpt is not None:
+        model.load_state_dict(ckpt["model"])
+        log.info("%s: resuming from %s at step %d", stage, last, ckpt["step"])
+    elif cfg["init_from"] == "resume":
+        raise FileNotFoundError(f"{last}: init_from is 'resume' but there is no checkpoint")
+    elif cfg["init_from"] != "scratch":
+        model.load_state_dict(load_checkpoint(Path(cfg["init_from"]))["model"])
+        log.info("%s: initialised from %s", stage, cfg["init_from"])
+    set_trainable(model, cfg["trainable"])
+    params = [p for p in model.parameters() if p.requires_grad]
+    optimizer = torch.optim.AdamW(params, lr=float(cfg["lr"]), weight_decay=float(cfg.get("weight_decay", 1e-4)))
+    if world > 1:
+        model = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+    step, history, elapsed = 0, [], 0.0
+    plateau_cfg = cfg.get("plateau")
+    plateau = Plateau(float(plateau_cfg["delta"]), int(plateau_cfg["patience"])) if plateau_cfg else None
+    if ckpt is not None:
+        optimizer.load_state_dict(ckpt["optimizer"])
+        step, history, elapsed = ckpt["step"], ckpt["extra"]["history"], ckpt["extra"]["elapsed"]
+        if plateau and ckpt["extra"].get("plateau"):
+            plateau.state = ckpt["extra"]["plateau"]
+    max_steps, weights = int(cfg["max_steps"]), base["loss_weights"]
+
+    def checkpoint(path: Path) -> None:
+        if master:
+            extra = {"history": history, "elapsed": elapsed + time.perf_counter() - t0,
+                     "plateau": plateau.state if plateau else None}
+            save_checkpoint(path, model, optimizer, None, step, stage, config, extra)
+            write_history(out_dir / "history.csv", history)
+
+    batches = InfiniteBatches(loader, start_step=step)
+    t0 = time.perf_counter()
+    stopped_on_plateau = False
+    bar = tqdm(total=max_steps, initial=step, desc=stage, unit="step", disable=not master, dynamic_ncols=True)
+    while step < max_steps:
+        model.train()
+        set_trainable(unwrap(model), cfg["trainable"])  # frozen BatchNorm stays in eval mode
+        lr = cosine_lr(step, max_steps, float(cfg["lr"]), float(cfg["lr_min"]), int(cfg.get("warmup", 0)))
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+        batch = {k: v.to(device, non_blocking=True) for k, v in next(batches).items()}
+        losses = multi_objective_loss(model(batch["image"]), batch, weights)
+        optimizer.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        optimizer.step()
+        step += 1
+        terms = {k: float(v.detach()) for k, v in losses.items()}
+        row = {"step": step, "stage": stage, "wall_s": round(elapsed + time.perf_counter() - t0, 3), "lr": lr, **terms}
+        if step % int(cfg.get("eval_every", 100)) == 0 or step == max_steps:
+            row.update(validate(model, val_loader, weights, device))
+        history.append(row)
+        bar.set_postfix(loss=f"{terms['total']:.3f}", joints=f"{terms['joints']:.3f}")
+        bar.update(1)
+        if plateau is not None and plateau.update(step, terms["total"]):
+            log.info("%s: loss plateaued at step %d", stage, step)
+            stopped_on_plateau = True
+            break
+        if step % int(cfg.get("checkpoint_every", 100)) == 0:
+            checkpoint(last)
+    bar.close()
+    if not any(k.startswith("val_") for k in history[-1]):
+        history[-1].update(validate(model, val_loader, weights, device))
+    checkpoint(last)
+    if master:
+        save_checkpoint(out_dir / "model.pt", model, None, None, step, stage, config,
+                        {"history": [], "elapsed": elapsed + time.perf_counter() - t0})
+    ddp_diff = ranks_weight_difference(unwrap(model)) if world > 1 else 0.0
+    final = {k: v for k, v in history[-1].items() if k.startswith("val_")}
+    steps_here = len(history)
+    wall = history[-1]["wall_s"]
+    return {"stage": stage, "steps": step, "stopped_on_plateau": stopped_on_plateau, "wall_s": wall,
+            "s_per_step": wall / max(1, steps_here), "num_train_frames": int(len(rows)), "world_size": world,
+            "ddp_max_weight_difference": ddp_diff, **final}
