@@ -44,6 +44,11 @@ def test_stage1_keeps_frozen_layers_bit_identical(tiny_project, tmp_path):
     assert frozen and all(torch.equal(before[k], after[k]) for k in frozen)
     transfer_stage2.run(params, tmp_path)
     assert (tmp_path / "models" / "transfer_stage2" / "history.csv").exists()
+    # a finished stage run again is left exactly as it was
+    stage1 = tmp_path / "models" / "transfer_stage1"
+    files = {p.name: p.read_bytes() for p in stage1.glob("*.pt")}
+    transfer_stage1.run(params, tmp_path)
+    assert {p.name: p.read_bytes() for p in stage1.glob("*.pt")} == files
 
 
 SCRIPT = """

@@ -4,6 +4,7 @@
     armpose profile NAME           make profiles/NAME.yaml the active params.yaml
     armpose render [...]           stage render (same as python -m armpose.stages.render)
     armpose labels [...]           stage labels (same as python -m armpose.stages.labels)
+    armpose pretrain | transfer_stage1 | transfer_stage2 | train_full [...]   training stages
 """
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import argparse
 import importlib
 import sys
 
-STAGES = {"render": "armpose.stages.render", "labels": "armpose.stages.labels"}
+STAGES = {name: f"armpose.stages.{name}" for name in
+          ("render", "labels", "pretrain", "transfer_stage1", "transfer_stage2", "train_full")}
 
 
 def cmd_robots(argv: list[str]) -> int:

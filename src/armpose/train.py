@@ -214,12 +214,13 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     optimizer = torch.optim.AdamW(params, lr=float(cfg["lr"]), weight_decay=float(cfg.get("weight_decay", 1e-4)))
     if world > 1:
         model = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
-    step, history, elapsed = 0, [], 0.0
+    step, history, elapsed, finished = 0, [], 0.0, False
     plateau_cfg = cfg.get("plateau")
     plateau = Plateau(float(plateau_cfg["delta"]), int(plateau_cfg["patience"])) if plateau_cfg else None
     if ckpt is not None:
         optimizer.load_state_dict(ckpt["optimizer"])
         step, history, elapsed = ckpt["step"], ckpt["extra"]["history"], ckpt["extra"]["elapsed"]
+        finished = bool(ckpt["extra"].get("finished"))
         if plateau and ckpt["extra"].get("plateau"):
             plateau.state = ckpt["extra"]["plateau"]
     max_steps, weights = int(cfg["max_steps"]), base["loss_weights"]
@@ -227,15 +228,15 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     def checkpoint(path: Path) -> None:
         if master:
             extra = {"history": history, "elapsed": elapsed + time.perf_counter() - t0,
-                     "plateau": plateau.state if plateau else None}
+                     "plateau": plateau.state if plateau else None, "finished": finished}
             save_checkpoint(path, model, optimizer, None, step, stage, config, extra)
             write_history(out_dir / "history.csv", history)
 
     batches = InfiniteBatches(loader, start_step=step)
     t0 = time.perf_counter()
-    stopped_on_plateau = False
     bar = tqdm(total=max_steps, initial=step, desc=stage, unit="step", disable=not master, dynamic_ncols=True)
-    while step < max_steps:
+    start_step = step
+    while step < max_steps and not finished:
         model.train()
         set_trainable(unwrap(model), cfg["trainable"])  # frozen BatchNorm stays in eval mode
         lr = cosine_lr(step, max_steps, float(cfg["lr"]), float(cfg["lr_min"]), int(cfg.get("warmup", 0)))
@@ -256,21 +257,22 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         bar.update(1)
         if plateau is not None and plateau.update(step, terms["total"]):
             log.info("%s: loss plateaued at step %d", stage, step)
-            stopped_on_plateau = True
             break
         if step % int(cfg.get("checkpoint_every", 100)) == 0:
             checkpoint(last)
     bar.close()
-    if not any(k.startswith("val_") for k in history[-1]):
-        history[-1].update(validate(model, val_loader, weights, device))
-    checkpoint(last)
-    if master:
-        save_checkpoint(out_dir / "model.pt", model, None, None, step, stage, config,
-                        {"history": [], "elapsed": elapsed + time.perf_counter() - t0})
+    if step > start_step or not (out_dir / "model.pt").exists():  # a finished run is left as it was
+        if not any(k.startswith("val_") for k in history[-1]):
+            history[-1].update(validate(model, val_loader, weights, device))
+        finished = True
+        checkpoint(last)
+        if master:
+            save_checkpoint(out_dir / "model.pt", model, None, None, step, stage, config,
+                            {"history": [], "elapsed": elapsed + time.perf_counter() - t0})
     ddp_diff = ranks_weight_difference(unwrap(model)) if world > 1 else 0.0
     final = {k: v for k, v in history[-1].items() if k.startswith("val_")}
     steps_here = len(history)
     wall = history[-1]["wall_s"]
-    return {"stage": stage, "steps": step, "stopped_on_plateau": stopped_on_plateau, "wall_s": wall,
+    return {"stage": stage, "steps": step, "stopped_on_plateau": step < max_steps, "wall_s": wall,
             "s_per_step": wall / max(1, steps_here), "num_train_frames": int(len(rows)), "world_size": world,
             "ddp_max_weight_difference": ddp_diff, **final}
