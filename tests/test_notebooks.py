@@ -1,7 +1,8 @@
 """The narrated notebooks: paired with their percent scripts, and executable end to end.
 
-Both notebooks run with papermill, in pipeline order (render, then labels), on the ``quick``
-profile into a temporary root, with a working directory that is neither the project nor the root.
+The notebooks run with papermill, in pipeline order (render, labels, pretrain, transfer stage 1,
+transfer stage 2), on the ``quick`` profile into one temporary root, with a working directory that is
+neither the project nor the root.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from jupyter_client.kernelspec import KernelSpecManager
 from armpose.config import profile_params
 
 ROOT = Path(__file__).resolve().parents[1]
-NOTEBOOKS = ["01_render", "02_labels"]   # pipeline order
+NOTEBOOKS = ["01_render", "02_labels", "03_pretrain", "04_transfer_stage1", "05_transfer_stage2"]   # pipeline order
 KERNEL = "python3"
 
 
@@ -41,7 +42,8 @@ def test_notebook_is_paired_and_clean(name):
 
 @pytest.mark.slow
 def test_notebooks_execute(tmp_path):
-    """render then labels, quick profile, into tmp_root: both run, figures come out, the dataset exists."""
+    """render, labels, then the three training stages, quick profile, into tmp_root: every notebook
+    runs, figures come out, the dataset and the three stages' weights and histories exist."""
     assert KERNEL in KernelSpecManager().find_kernel_specs(), (
         f"no Jupyter kernel {KERNEL!r}; install one with `python -m ipykernel install --user`")
     tmp_root = tmp_path / "root"
@@ -64,6 +66,12 @@ def test_notebooks_execute(tmp_path):
 
     assert pngs(executed["01_render"]) >= 2      # sample grid, camera poses
     assert pngs(executed["02_labels"]) >= 3      # overlays, mask area, distances
+    assert pngs(executed["03_pretrain"]) >= 2    # architecture, loss curves
+    assert pngs(executed["04_transfer_stage1"]) >= 1   # loss curves
+    assert pngs(executed["05_transfer_stage2"]) >= 3   # architecture, loss curves, both stages
+    for stage in ("pretrain", "transfer_stage1", "transfer_stage2"):
+        out = tmp_root / "models" / stage
+        assert (out / "model.pt").exists() and (out / "history.csv").exists() and (out / "summary.json").exists()
     index_path = tmp_root / "data" / "labels" / "index.json"
     assert index_path.exists()
     index = json.loads(index_path.read_text())
