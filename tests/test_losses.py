@@ -10,13 +10,7 @@ from armpose.losses import (PAPER_WEIGHTS, base_loss, joints_loss, mask_loss, mu
 from armpose.model import ArmPoseNet
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny tensors: one thread is as fast, and far faster when other jobs share the CPU."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def softplus(z: float) -> float:

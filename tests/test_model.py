@@ -10,13 +10,7 @@ from armpose.model import (GROUPS, ArmPoseNet, build_model, count_parameters, gr
 H, W = 48, 64  # small images keep the tests fast; the model works at any size
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny tensors: one thread is as fast, and far faster when other jobs share the CPU."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def tiny_batch(b: int = 4, h: int = H, w: int = W, seed: int = 0) -> dict:
