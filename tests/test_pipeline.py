@@ -3,7 +3,6 @@ import shutil
 import subprocess
 from pathlib import Path
 
-import numpy as np
 
 from armpose.config import project_root, write_params
 from armpose.labels.dataset import load_dataset

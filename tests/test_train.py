@@ -1,17 +1,13 @@
 """The training loop: frozen layers stay frozen, a killed run resumes to the same weights,
 DDP ranks agree, and the stages chain (pretrain -> stage 1 -> stage 2)."""
-import copy
-import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-import pytest
 import torch
 
 from armpose.config import profile_params
-from armpose.model import GROUPS, group_parameters
 from armpose.stages import pretrain, transfer_stage1, transfer_stage2
 from armpose.train import load_checkpoint
 

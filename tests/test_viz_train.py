@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 from matplotlib.figure import Figure
 
 from armpose import viz, viz_train

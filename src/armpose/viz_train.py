@@ -25,6 +25,7 @@ from matplotlib.patches import FancyBboxPatch, Patch
 from torch import nn
 
 from armpose.model import build_model, group_parameters, set_trainable
+from armpose.train import HISTORY_FIELDS
 
 #: The layer groups drawn and tabulated: :data:`armpose.model.GROUPS` with ``heads`` split into
 #: its three branches. Every parameter and buffer of :class:`armpose.model.ArmPoseNet` is in one.
@@ -37,7 +38,7 @@ STAGE1_COLOR = "#5b8fd9"
 STAGE2_COLOR = "#e0605a"
 FROZEN_COLOR = "#c8c8c8"
 LOSS_TERMS = ("total", "mask", "joints", "base", "type")
-VAL_FIELDS = ("val_total", "val_joint_cm", "val_base_cm", "val_type_acc", "val_mask_acc")
+VAL_FIELDS = tuple(f for f in HISTORY_FIELDS if f.startswith("val_"))
 
 
 # --------------------------------------------------------------------------- layer groups

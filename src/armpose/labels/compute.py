@@ -20,7 +20,6 @@ from armpose.robots.kinematics import Kinematics
 
 log = logging.getLogger(__name__)
 
-FIELDS = ("images", "masks", "joints", "joint_valid", "base", "distance", "intrinsics", "frame")
 
 
 def scale_crop_image(img: np.ndarray, camera: Camera, width: int, height: int) -> np.ndarray:
