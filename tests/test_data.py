@@ -58,7 +58,8 @@ def test_items_have_the_documented_shapes_dtypes_and_ranges(folder):
         expected = {"image": ((3, H, W), torch.float32), "mask": ((H, W), torch.float32),
                     "joints": ((J, 3), torch.float32), "joint_valid": ((J,), torch.bool),
                     "base": ((3,), torch.float32), "robot": ((), torch.int64), "distance": ((), torch.float32),
-                    "intrinsics": ((4,), torch.float32), "index": ((), torch.int64)}
+                    "intrinsics": ((4,), torch.float32), "image_size": ((2,), torch.int64),
+                    "index": ((), torch.int64)}
         assert {k: (tuple(v.shape), v.dtype) for k, v in item.items()} == expected
         assert 0 <= item["image"].min() and item["image"].max() <= 1
         assert set(item["mask"].unique().tolist()) <= {0.0, 1.0}

@@ -98,7 +98,7 @@ def test_group_table_and_trainable_counts(tiny_model):
     by = {r["group"]: r for r in rows}
     assert by["heads.joints"]["s1"] == "yes" and by["trunk.late"]["s1"] == "-" and by["trunk.late"]["s2"] == "yes"
     assert by["trunk.early"]["s2"] == "-"
-    heads = sum(count_parameters(tiny_model, g) for g in ("heads.joints", "heads.base", "heads.robot_type"))
+    heads = sum(count_parameters(tiny_model, g) for g in ("heads.neck", "heads.joints", "heads.base", "heads.robot_type"))
     c = viz_train.trainable_counts(tiny_model, ["heads"])
     assert c["trainable"] == heads and c["trainable"] + c["frozen"] == c["total"] == total
     assert by["total"]["s1"] == f"{heads:,}"

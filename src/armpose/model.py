@@ -18,13 +18,13 @@ Architecture (``width`` = w, 32 by default; strides relative to the input)::
                   BasicBlock/2                                          c4  stride 32, 8w
     mask_decoder  FPN: 1x1 laterals of c1..c4 to w channels, top-down bilinear upsample + add,
                   separable 3x3 at stride 4, 1x1 to one logit, bilinear upsample to (H, W)
-    heads         features at stride 16: [c3, upsample(c4), x/y CoordConv channels]
+    heads.neck    1x1 laterals of c2, c3, c4 to 4w channels, summed at stride 8, + x/y CoordConv
       .joints     KeypointHead(K=max_joints)  \
       .base       KeypointHead(K=1)            } read trunk features only, never the decoder
       .robot_type avg+max pool of c4 -> MLP -> num_types logits
 
 Every conv is conv-BN(-ReLU); BasicBlock is ResNet's (two 3x3, projection shortcut when the
-shape changes); "/2" is stride 2. At w=32: about 0.27 GMAC per 212x256 frame, 1.9 M parameters.
+shape changes); "/2" is stride 2. At w=32: about 0.3 GMAC per 212x256 frame, 1.9 M parameters.
 Run it in ``channels_last`` memory format on CPU: faster at batch 1 (1.1-3x in our runs).
 
 A :class:`KeypointHead` makes one spatial softmax ("attention") map per point. The map's
@@ -200,16 +200,18 @@ class KeypointHead(nn.Module):
         self.log_depth = nn.Parameter(torch.tensor(math.log(depth)))
         self.half_fov_tan = nn.Parameter(torch.tensor([float(t) for t in half_fov_tan]))
 
-    def forward(self, x: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, coords: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(B, K, 3)`` points in the camera frame (metres) and ``(B, K, h, w)`` attention logits."""
         f = self.features(x)                                               # (B, C, h, w)
-        attn = self.attention(f).flatten(2).softmax(-1)                    # (B, K, hw)
+        logits = self.attention(f)                                         # (B, K, h, w)
+        attn = logits.flatten(2).softmax(-1)                               # (B, K, hw)
         uv = attn @ coords.flatten(2).transpose(1, 2)                      # (B, K, 2)
         pooled = attn @ f.flatten(2).transpose(1, 2)                       # (B, K, C)
         glob = f.mean((2, 3))[:, None].expand(-1, self.k, -1)             # (B, K, C)
         out = self.mlp(torch.cat([pooled, glob, uv], -1))                  # (B, K, 3)
         z = torch.exp(self.log_depth + 3 * torch.tanh(out[..., 2] / 3))
         xy = z[..., None] * (uv + out[..., :2]) * self.half_fov_tan
-        return torch.cat([xy, z[..., None]], -1)
+        return torch.cat([xy, z[..., None]], -1), logits
 
 
 class TypeHead(nn.Module):
@@ -221,22 +223,42 @@ class TypeHead(nn.Module):
         return self.mlp(torch.cat([c4.mean((2, 3)), c4.amax((2, 3))], 1))
 
 
+class KeypointNeck(nn.Module):
+    """Stride-8 features for the keypoint heads: 1x1 laterals of c2, c3, c4 summed (FPN-style)."""
+
+    def __init__(self, w: int, cout: int):
+        super().__init__()
+        self.lateral = nn.ModuleList(conv_bn_relu(c, cout, 1, relu=False) for c in (2 * w, 4 * w, 8 * w))
+
+    def forward(self, c2: torch.Tensor, c3: torch.Tensor, c4: torch.Tensor) -> torch.Tensor:
+        size = c2.shape[-2:]
+        x = self.lateral[0](c2) + _resize(self.lateral[1](c3), size) + _resize(self.lateral[2](c4), size)
+        return F.relu(x, inplace=True)
+
+
 class Heads(nn.Module):
-    """The regression and classification branches; they read trunk features only."""
+    """The regression and classification branches; they read trunk features only.
+
+    Outputs ``joints``, ``base``, ``type_logits`` and the keypoint heads' attention logits
+    ``joints_attention`` (B, K, H/8, W/8) and ``base_attention`` (B, 1, H/8, W/8), which a
+    heatmap loss can supervise (:func:`armpose.losses.heatmap_loss`)."""
 
     def __init__(self, w: int, num_types: int, max_joints: int, half_fov_tan, depth: float):
         super().__init__()
-        cin = 4 * w + 8 * w + 2
-        self.joints = KeypointHead(cin, max_joints, 4 * w, half_fov_tan, depth)
-        self.base = KeypointHead(cin, 1, 2 * w, half_fov_tan, depth)
+        self.neck = KeypointNeck(w, 4 * w)
+        self.joints = KeypointHead(4 * w + 2, max_joints, 4 * w, half_fov_tan, depth)
+        self.base = KeypointHead(4 * w + 2, 1, 2 * w, half_fov_tan, depth)
         self.robot_type = TypeHead(8 * w, 4 * w, num_types)
 
     def forward(self, feats: list[torch.Tensor]) -> dict[str, torch.Tensor]:
-        c3, c4 = feats[2], feats[3]
-        coords = coord_channels(c3)
-        x = torch.cat([c3, _resize(c4, c3.shape[-2:]), coords.expand(c3.shape[0], -1, -1, -1)], 1)
-        return {"joints": self.joints(x, coords), "base": self.base(x, coords)[:, 0],
-                "type_logits": self.robot_type(c4)}
+        c2, c3, c4 = feats[-3], feats[-2], feats[-1]
+        x = self.neck(c2, c3, c4)
+        coords = coord_channels(x)
+        x = torch.cat([x, coords.expand(x.shape[0], -1, -1, -1)], 1)
+        joints, joints_attention = self.joints(x, coords)
+        base, base_attention = self.base(x, coords)
+        return {"joints": joints, "base": base[:, 0], "type_logits": self.robot_type(c4),
+                "joints_attention": joints_attention, "base_attention": base_attention}
 
 
 class ArmPoseNet(nn.Module):
@@ -253,16 +275,32 @@ class ArmPoseNet(nn.Module):
         self.mask_decoder = MaskDecoder(width)
         self.heads = Heads(width, num_types, max_joints, half_fov_tan, depth)
 
-    def forward(self, image: torch.Tensor) -> dict[str, torch.Tensor]:
-        feats = self.trunk((image - 0.5) / 0.25)
+    def forward(self, image: torch.Tensor | None = None, *,
+                features: list[torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+        """Every output from ``image``; or, given the trunk's ``features`` ``[c1, c2, c3, c4]``
+        (or just ``[c2, c3, c4]``) instead, the heads' outputs only (no mask). The
+        second form is how a run whose trunk is frozen trains on cached features."""
+        if features is not None:
+            return self.heads(features)
+        feats = self.trunk(normalise(image))
         out = self.heads(feats)
         out["mask_logits"] = self.mask_decoder(feats, image.shape[-2:])
         return out
+
+    @torch.no_grad()
+    def trunk_features(self, image: torch.Tensor) -> list[torch.Tensor]:
+        """``[c2, c3, c4]`` of the trunk for ``image``, without gradients: what the heads read."""
+        return self.trunk(normalise(image))[1:]
 
     def train(self, mode: bool = True) -> "ArmPoseNet":
         super().train(mode)
         apply_freeze_mode(self)
         return self
+
+
+def normalise(image: torch.Tensor) -> torch.Tensor:
+    """RGB in [0, 1] to the network's input scale, about zero mean and unit spread."""
+    return (image - 0.5) / 0.25
 
 
 def build_model(cfg: dict | None = None) -> ArmPoseNet:

@@ -24,6 +24,7 @@ import torch
 import torch.distributed as dist
 from tqdm import tqdm
 
+from armpose.features import CachedFeatureFrames, cache_trunk_features, trunk_is_frozen
 from armpose.data import InfiniteBatches, LabelledFrames, make_loader, transfer_set, validation_subset
 from armpose.io import atomic_write_bytes
 from armpose.labels.dataset import load_dataset
@@ -31,7 +32,7 @@ from armpose.losses import multi_objective_loss
 from armpose.model import build_model, set_trainable
 
 log = logging.getLogger(__name__)
-HISTORY_FIELDS = ["step", "stage", "wall_s", "lr", "total", "mask", "joints", "base", "type",
+HISTORY_FIELDS = ["step", "stage", "wall_s", "lr", "total", "mask", "joints", "base", "type", "reproj", "heatmap",
                   "val_total", "val_joint_cm", "val_base_cm", "val_type_acc", "val_mask_acc"]
 
 
@@ -122,6 +123,11 @@ def _identity(config: dict) -> dict:
             else config[part] for part in config}
 
 
+def to_channels_last(images: torch.Tensor) -> torch.Tensor:
+    """NHWC memory layout: 1.2-3x faster convolutions on CPU in our runs."""
+    return images.contiguous(memory_format=torch.channels_last)
+
+
 # ----------------------------------------------------------------------------- evaluation
 @torch.no_grad()
 def validate(model, loader, weights: dict, device) -> dict:
@@ -132,7 +138,7 @@ def validate(model, loader, weights: dict, device) -> dict:
     n, joint_err, base_err, type_ok, mask_acc = 0, [], [], [], []
     for batch in loader:
         batch = {k: v.to(device) for k, v in batch.items()}
-        out = model(batch["image"])
+        out = model(to_channels_last(batch["image"]))
         losses = multi_objective_loss(out, batch, weights)
         b = batch["image"].shape[0]
         for k, v in losses.items():
@@ -186,12 +192,10 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     train_ds = LabelledFrames(data_dir, rows, augment=cfg.get("augment"), seed=seed)
     val_ds = LabelledFrames(data_dir, val_rows)
     bs = int(cfg["batch_size"]) // world
-    loader = make_loader(train_ds, bs, shuffle=True, seed=seed, num_workers=int(cfg.get("num_workers", 1)),
-                         drop_last=True, distributed=world > 1)
     val_loader = make_loader(val_ds, bs, shuffle=False, seed=seed, num_workers=0, drop_last=False)
 
     # model: init_from (scratch | resume | checkpoint path), then the freeze list
-    model = build_model(base.get("model", {})).to(device)
+    model = build_model(base.get("model", {})).to(device).to(memory_format=torch.channels_last)
     last = out_dir / "last.pt"
     ckpt = None
     config = {"stage": stage, "cfg": cfg, "base": base}
@@ -209,6 +213,13 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         model.load_state_dict(load_checkpoint(Path(cfg["init_from"]))["model"])
         log.info("%s: initialised from %s", stage, cfg["init_from"])
     set_trainable(model, cfg["trainable"])
+    cached = bool(cfg.get("feature_cache", True)) and trunk_is_frozen(cfg["trainable"])
+    cache_s = time.perf_counter()
+    if cached:  # the trunk never changes in this run: compute its features once
+        train_ds = CachedFeatureFrames(train_ds, cache_trunk_features(model, train_ds, device, disable_bar=not master))
+    cache_s = time.perf_counter() - cache_s
+    loader = make_loader(train_ds, bs, shuffle=True, seed=seed, num_workers=0 if cached else int(cfg.get("num_workers", 1)),
+                         drop_last=True, distributed=world > 1)
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.AdamW(params, lr=float(cfg["lr"]), weight_decay=float(cfg.get("weight_decay", 1e-4)))
     if world > 1:
@@ -242,7 +253,8 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         for group in optimizer.param_groups:
             group["lr"] = lr
         batch = {k: v.to(device, non_blocking=True) for k, v in next(batches).items()}
-        losses = multi_objective_loss(model(batch["image"]), batch, weights)
+        out = model(features=[batch["c2"], batch["c3"], batch["c4"]]) if cached else model(to_channels_last(batch["image"]))
+        losses = multi_objective_loss(out, batch, weights)
         optimizer.zero_grad(set_to_none=True)
         losses["total"].backward()
         optimizer.step()
@@ -274,4 +286,5 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     wall = history[-1]["wall_s"]
     return {"stage": stage, "steps": step, "stopped_on_plateau": step < max_steps, "wall_s": wall,
             "s_per_step": wall / max(1, steps_here), "num_train_frames": int(len(rows)), "world_size": world,
-            "ddp_max_weight_difference": ddp_diff, **final}
+            "ddp_max_weight_difference": ddp_diff, "feature_cache": cached, "feature_cache_s": round(cache_s, 3),
+            **final}

@@ -29,7 +29,7 @@ from armpose.train import HISTORY_FIELDS
 
 #: The layer groups drawn and tabulated: :data:`armpose.model.GROUPS` with ``heads`` split into
 #: its three branches. Every parameter and buffer of :class:`armpose.model.ArmPoseNet` is in one.
-LEAF_GROUPS: tuple[str, ...] = ("trunk.early", "trunk.late", "mask_decoder",
+LEAF_GROUPS: tuple[str, ...] = ("trunk.early", "trunk.late", "mask_decoder", "heads.neck",
                                 "heads.joints", "heads.base", "heads.robot_type")
 
 #: Colours of the paper's Fig. 4: blue = learns from stage 1 on (the final layers), red = learns
@@ -167,6 +167,8 @@ def architecture_figure(params: dict, model: nn.Module | None = None) -> Figure:
          f"BasicBlock/2\n-> c4 (/32, {8 * w} ch)\n\n{n('trunk.late')}", color["trunk.late"])
     _box(ax, 9.0, 6.3, 2.8, 1.7, f"mask_decoder\nFPN on c1..c4, 3x3 at /4,\n1x1 -> 1 logit, upsample\n"
          f"{n('mask_decoder')}", color["mask_decoder"])
+    _box(ax, 5.5, 0.4, 2.5, 1.9, f"heads.neck\n1x1 laterals of c2, c3, c4\nsummed at /8 ({4 * w} ch)\n"
+         f"{n('heads.neck')}", color["heads.neck"])
     _box(ax, 9.0, 4.3, 2.8, 1.4, f"heads.joints\nspatial softmax x {k},\nlog-depth, pinhole\n"
          f"{n('heads.joints')}", color["heads.joints"])
     _box(ax, 9.0, 2.4, 2.8, 1.4, f"heads.base\nspatial softmax x 1,\nlog-depth, pinhole\n"
@@ -184,8 +186,9 @@ def architecture_figure(params: dict, model: nn.Module | None = None) -> Figure:
     _arrow(ax, (4.9, 4.2), (5.5, 4.2), "c2")
     _arrow(ax, (3.55, 5.6), (9.0, 7.3), "c1, c2", rad=-0.15)
     _arrow(ax, (8.1, 5.0), (9.0, 6.8), "c3, c4")
-    _arrow(ax, (8.1, 4.4), (9.0, 5.0), "[c3, c4, xy]")
-    _arrow(ax, (8.1, 3.8), (9.0, 3.1))
+    _arrow(ax, (6.75, 2.9), (6.75, 2.3), "c2, c3, c4")
+    _arrow(ax, (8.0, 1.6), (9.0, 5.0), "[/8, xy]", rad=0.1)
+    _arrow(ax, (8.0, 1.3), (9.0, 3.1))
     _arrow(ax, (8.1, 3.2), (9.0, 1.2), "c4")
     for (y, _), src_y in zip(outs, (7.15, 5.0, 3.1, 1.2)):
         _arrow(ax, (11.9, src_y), (12.6, y + 0.7))
