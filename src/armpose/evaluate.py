@@ -1,0 +1,114 @@
+"""Evaluate a trained checkpoint on the held-out split: predictions, then metrics per family and type.
+
+:func:`predict_split` runs the network over the test frames of ``data/labels`` (the images
+exactly as stored, no augmentation) and returns per-frame predictions and truth;
+:func:`evaluate_checkpoint` adds the metrics of :mod:`armpose.metrics` per robot family (UR,
+KUKA, Panda: the paper's Table II rows), per robot type, per data source (synthetic,
+recorded) and the type confusion matrix. All positions are metres in the camera optical frame.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from armpose.data import LabelledFrames, split_indices
+from armpose.labels.dataset import SOURCE_CODES, load_dataset
+from armpose.metrics import confusion_matrix, mask_counts, summarise
+from armpose.model import build_model
+from armpose.robots import get_robot
+from armpose.train import load_checkpoint, to_channels_last
+
+log = logging.getLogger(__name__)
+
+
+def load_model(checkpoint: Path, device: torch.device | str = "cpu"):
+    """(model in eval mode, checkpoint config) from an armpose checkpoint."""
+    ckpt = load_checkpoint(Path(checkpoint))
+    model = build_model(ckpt["config"]["base"].get("model", {}))
+    model.load_state_dict(ckpt["model"])
+    model = model.to(device).to(memory_format=torch.channels_last).eval()
+    return model, ckpt["config"]
+
+
+@torch.no_grad()
+def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 32,
+                  device: torch.device | str = "cpu", rows: np.ndarray | None = None) -> tuple[dict, dict]:
+    """``(pred, truth)`` dicts of per-frame numpy arrays over ``rows`` (default: every frame of
+    ``split``). ``pred``: joints, base, type, type_probs, mask_counts; ``truth``: joints,
+    joint_valid, base, type, intrinsics, distance, source, recording, row."""
+    arrays, _ = load_dataset(Path(data_dir))
+    rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
+    frames = LabelledFrames(Path(data_dir), rows)
+    joints, base, probs, counts = [], [], [], []
+    for start in tqdm(range(0, len(frames), batch_size), desc="evaluate", unit="batch", dynamic_ncols=True):
+        items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
+        images = to_channels_last(torch.stack([it["image"] for it in items]).to(device))
+        out = model(images)
+        joints.append(out["joints"].float().cpu().numpy())
+        base.append(out["base"].float().cpu().numpy())
+        probs.append(out["type_logits"].float().softmax(-1).cpu().numpy())
+        pred_mask = (out["mask_logits"][:, 0] > 0).cpu().numpy()
+        counts.append(mask_counts(pred_mask, torch.stack([it["mask"] for it in items]).numpy() > 0.5))
+    cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
+    type_probs = cat(probs, (0, 0))
+    pred = {"joints": cat(joints, (0, 0, 3)), "base": cat(base, (0, 3)), "type_probs": type_probs,
+            "type": type_probs.argmax(1) if len(type_probs) else np.zeros(0, np.int64),
+            "mask_counts": cat(counts, (0, 4))}
+    truth = {"joints": np.asarray(arrays["joints"][rows], np.float64),
+             "joint_valid": np.asarray(arrays["joint_valid"][rows], bool),
+             "base": np.asarray(arrays["base"][rows], np.float64),
+             "type": np.asarray(arrays["robot"][rows], np.int64),
+             "intrinsics": np.asarray(arrays["intrinsics"][rows], np.float64),
+             "distance": np.asarray(arrays["distance"][rows], np.float64),
+             "source": np.asarray(arrays["source"][rows], np.int64),
+             "recording": np.asarray(arrays["recording"][rows], np.int64),
+             "row": rows}
+    return pred, truth
+
+
+def family_of(robot_types: list[str]) -> list[str]:
+    """The family of each robot type, from the registry (``ur3`` -> ``UR``)."""
+    return [get_robot(name).family for name in robot_types]
+
+
+def metrics_by_group(pred: dict, truth: dict, robot_types: list[str], pixel_scale: float) -> dict:
+    """``{"all", "by_family", "by_type", "by_source", "confusion"}`` over the frames of ``truth``."""
+    families = family_of(robot_types)
+    fam_of_frame = np.array([families[t] for t in truth["type"]]) if len(truth["type"]) else np.array([])
+    result = {"all": summarise(pred, truth, np.arange(len(truth["type"])), pixel_scale),
+              "by_family": {}, "by_type": {}, "by_source": {}}
+    for fam in dict.fromkeys(families):
+        result["by_family"][fam] = summarise(pred, truth, np.flatnonzero(fam_of_frame == fam), pixel_scale)
+    for t, name in enumerate(robot_types):
+        result["by_type"][name] = summarise(pred, truth, np.flatnonzero(truth["type"] == t), pixel_scale)
+    for source, code in SOURCE_CODES.items():
+        rows = np.flatnonzero(truth["source"] == code)
+        if rows.size:
+            result["by_source"][source] = {
+                "all": summarise(pred, truth, rows, pixel_scale),
+                "by_family": {fam: summarise(pred, truth, rows[fam_of_frame[rows] == fam], pixel_scale)
+                              for fam in dict.fromkeys(families) if (fam_of_frame[rows] == fam).any()}}
+    result["confusion"] = {"labels": list(robot_types),
+                           "matrix": confusion_matrix(pred["type"], truth["type"], len(robot_types)).tolist()}
+    return result
+
+
+def pixel_scale_of(base: dict) -> float:
+    """Network-input pixels per pixel of the rectified camera image (scale-and-crop factor)."""
+    cam, size = base["camera"], base["input_size"]
+    return max(size["width"] / cam["width"], size["height"] / cam["height"])
+
+
+def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str = "test",
+                        batch_size: int = 32, device: str = "cpu") -> tuple[dict, dict, dict]:
+    """``(metrics, pred, truth)`` of one checkpoint on ``split``."""
+    model, _ = load_model(checkpoint, device)
+    pred, truth = predict_split(model, data_dir, split, batch_size, device)
+    metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base))
+    log.info("%s on %s: %s", checkpoint, split, {k: metrics["by_family"][k].get("joint_median_cm")
+                                                 for k in metrics["by_family"]})
+    return metrics, pred, truth

@@ -1,0 +1,124 @@
+"""Evaluation metrics, pure numpy: the paper's (section VI) and what the field reports besides.
+
+Inputs are per-frame arrays over N test frames:
+
+- ``pred_joints``, ``true_joints`` (N, J, 3) metres, camera optical frame; ``joint_valid`` (N, J);
+- ``pred_base``, ``true_base`` (N, 3) metres;
+- ``pred_type``, ``true_type`` (N,) class indices;
+- per-frame mask counts from :func:`mask_counts` (pixels that agree, intersection, union);
+- ``intrinsics`` (N, 4) fx, fy, cx, cy of the network input, and ``pixel_scale`` the factor
+  from network-input pixels to pixels of the rectified camera image (PCK is reported in the
+  camera image, as DREAM does).
+
+Definitions:
+
+- mask accuracy: the fraction of pixels whose predicted class matches the truth (paper);
+- mask IoU: intersection over union of the robot pixels, summed per frame then averaged;
+- median / mean joint error: over every valid joint of every frame, Euclidean, cm;
+- ADD AUC at 10 cm: per frame, ADD is the mean Euclidean error of its valid joints; the
+  AUC is the area under the fraction of frames with ADD <= t for t in [0, 0.1] m, divided by
+  0.1 (1.0 is perfect), as NVlabs/DREAM computes it (:func:`armpose.camera_pose.add_auc`);
+- PCK@k px: the fraction of valid joints whose projected 2D error is below k pixels.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from armpose import camera_pose
+
+ADD_AUC_THRESHOLD_M = 0.1
+PCK_PIXELS = (5, 10)
+SUMMARY_KEYS = ("mask_accuracy", "mask_iou", "type_accuracy", "joint_median_cm", "joint_mean_cm",
+                "base_median_cm", "base_mean_cm", "add_auc_10cm")
+
+
+def mask_counts(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """``(N, 4)`` per frame: pixels that agree, intersection, union, pixel count. Masks (N, H, W) bool."""
+    pred, truth = np.asarray(pred, bool), np.asarray(truth, bool)
+    agree = (pred == truth).reshape(len(pred), -1).sum(1)
+    inter = (pred & truth).reshape(len(pred), -1).sum(1)
+    union = (pred | truth).reshape(len(pred), -1).sum(1)
+    return np.stack([agree, inter, union, np.full(len(pred), pred[0].size if len(pred) else 0)], 1).astype(np.int64)
+
+
+def joint_errors(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``(N, J)`` Euclidean errors in metres, NaN where the joint slot is not valid."""
+    err = np.linalg.norm(np.asarray(pred, np.float64) - np.asarray(truth, np.float64), axis=-1)
+    return np.where(np.asarray(valid, bool), err, np.nan)
+
+
+def add_auc(add: np.ndarray, threshold: float = ADD_AUC_THRESHOLD_M) -> float:
+    """DREAM's ADD AUC (see :func:`armpose.camera_pose.add_auc`); NaN for no frames."""
+    add = np.asarray(add, np.float64)
+    return camera_pose.add_auc(add, threshold) if add.size else float("nan")
+
+
+def project(points: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
+    """Pixels ``(N, J, 2)`` of camera-frame points ``(N, J, 3)`` through per-frame intrinsics ``(N, 4)``."""
+    k = np.asarray(intrinsics, np.float64)[:, None, :]
+    p = np.asarray(points, np.float64)
+    z = np.clip(p[..., 2], 1e-6, None)
+    return np.stack([k[..., 0] * p[..., 0] / z + k[..., 2], k[..., 1] * p[..., 1] / z + k[..., 3]], -1)
+
+
+def _median_cm(values: np.ndarray) -> float:
+    v = values[np.isfinite(values)]
+    return float(100 * np.median(v)) if v.size else float("nan")
+
+
+def _mean_cm(values: np.ndarray) -> float:
+    v = values[np.isfinite(values)]
+    return float(100 * np.mean(v)) if v.size else float("nan")
+
+
+def summarise(pred: dict, truth: dict, rows: np.ndarray, pixel_scale: float = 1.0) -> dict:
+    """Every metric over the frames ``rows`` (indices into the per-frame arrays).
+
+    ``pred`` keys: ``joints``, ``base``, ``type``, ``mask_counts``; ``truth`` keys: ``joints``,
+    ``joint_valid``, ``base``, ``type``, ``intrinsics``. Returns a flat dict of floats."""
+    rows = np.asarray(rows, np.int64)
+    if rows.size == 0:
+        nan = float("nan")
+        return {"frames": 0, **{k: nan for k in SUMMARY_KEYS}, **{f"pck_{k}px": nan for k in PCK_PIXELS},
+                "per_joint_median_cm": []}
+    err = joint_errors(pred["joints"][rows], truth["joints"][rows], truth["joint_valid"][rows])
+    per_frame_add = np.nanmean(np.where(np.isnan(err), np.nan, err), axis=1)
+    base_err = np.linalg.norm(pred["base"][rows] - truth["base"][rows], axis=-1)
+    counts = pred["mask_counts"][rows].astype(np.float64)
+    iou = np.where(counts[:, 2] > 0, counts[:, 1] / np.maximum(counts[:, 2], 1), 1.0)
+    uv_err = np.linalg.norm(project(pred["joints"][rows], truth["intrinsics"][rows])
+                            - project(truth["joints"][rows], truth["intrinsics"][rows]), axis=-1) / pixel_scale
+    valid = np.asarray(truth["joint_valid"][rows], bool)
+    out = {
+        "frames": int(rows.size),
+        "mask_accuracy": float((counts[:, 0] / counts[:, 3]).mean()),
+        "mask_iou": float(iou.mean()),
+        "type_accuracy": float((pred["type"][rows] == truth["type"][rows]).mean()),
+        "joint_median_cm": _median_cm(err),
+        "joint_mean_cm": _mean_cm(err),
+        "base_median_cm": _median_cm(base_err),
+        "base_mean_cm": _mean_cm(base_err),
+        "add_auc_10cm": add_auc(per_frame_add),
+    }
+    for k in PCK_PIXELS:
+        out[f"pck_{k}px"] = float((uv_err[valid] < k).mean()) if valid.any() else float("nan")
+    out["per_joint_median_cm"] = [_median_cm(err[:, j]) for j in range(err.shape[1])
+                                  if np.isfinite(err[:, j]).any()]
+    return out
+
+
+def confusion_matrix(pred_type: np.ndarray, true_type: np.ndarray, num_types: int) -> np.ndarray:
+    """``(num_types, num_types)`` counts, rows = true class, columns = predicted class."""
+    m = np.zeros((num_types, num_types), np.int64)
+    np.add.at(m, (np.asarray(true_type, np.int64), np.asarray(pred_type, np.int64)), 1)
+    return m
+
+
+def error_by_distance(err: np.ndarray, distance: np.ndarray, edges: np.ndarray) -> list[dict]:
+    """Median joint error (cm) per camera-distance bin; ``err`` (N, J) metres with NaN for invalid."""
+    rows = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (distance >= lo) & (distance < hi)
+        rows.append({"distance_lo_m": float(lo), "distance_hi_m": float(hi), "frames": int(sel.sum()),
+                     "joint_median_cm": _median_cm(err[sel]) if sel.any() else float("nan")})
+    return rows

@@ -1,0 +1,105 @@
+"""Stage ``latency``: forward time per frame of the trained network (paper: 19-23 ms, GTX 1080 Ti).
+
+Batch 1: the median and 95th percentile over ``frames`` timed forwards after ``warmup``
+untimed ones; batch ``batch``: frames per second. On CPU with ``threads`` torch threads,
+and on CUDA as well when a GPU is present. Inputs are test images from ``data/labels`` at
+the network's 256x212 input. Writes ``results/latency.json``; ``benchmarks/bench_inference.py``
+is the same function from the command line.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from armpose.config import load_params, project_root
+from armpose.data import LabelledFrames, split_indices
+from armpose.evaluate import load_model
+from armpose.io import atomic_write_json
+from armpose.labels.dataset import load_dataset
+
+log = logging.getLogger(__name__)
+OUTPUT = Path("results/latency.json")
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+@torch.no_grad()
+def time_device(model, images: torch.Tensor, device: torch.device, frames: int, warmup: int, batch: int) -> dict:
+    """Batch-1 latency (ms) and batch-``batch`` throughput (frames/s) of ``model`` on ``device``."""
+    model = model.to(device)
+    imgs = images.to(device).contiguous(memory_format=torch.channels_last)
+    for i in range(warmup):
+        model(imgs[i % len(imgs)][None])
+    _sync(device)
+    times = []
+    for i in range(frames):
+        t = time.perf_counter()
+        model(imgs[i % len(imgs)][None])
+        _sync(device)
+        times.append(1000 * (time.perf_counter() - t))
+    big = imgs[np.arange(batch) % len(imgs)]
+    model(big)
+    _sync(device)
+    t = time.perf_counter()
+    reps = 3
+    for _ in range(reps):
+        model(big)
+    _sync(device)
+    fps = reps * batch / (time.perf_counter() - t)
+    return {"batch1_median_ms": round(float(np.median(times)), 3), "batch1_p95_ms": round(float(np.percentile(times, 95)), 3),
+            "batch1_frames": frames, f"batch{batch}_fps": round(fps, 2)}
+
+
+def run(params: dict, root: Path | None = None) -> dict:
+    """Time the stage-2 checkpoint; returns and writes the results dict."""
+    root = Path(root or project_root())
+    cfg = params["latency"]
+    torch.set_num_threads(int(cfg["threads"]))
+    model, _ = load_model(root / cfg["checkpoint"])
+    data = root / "data" / "labels"
+    arrays, _ = load_dataset(data)
+    rows = split_indices(arrays, "test")[: int(cfg["images"])]
+    frames = LabelledFrames(data, rows)
+    images = torch.stack([frames[i]["image"] for i in range(len(frames))])
+    result = {"checkpoint": cfg["checkpoint"], "input": f"{images.shape[-1]}x{images.shape[-2]}",
+              "paper_ms": [19, 23], "paper_device": "GTX 1080 Ti", "target_cpu_median_ms": 15.0,
+              "cpu": {"threads": int(cfg["threads"]), "processor": platform.processor() or platform.machine(),
+                      "cpu_count": os.cpu_count(),
+                      **time_device(model, images, torch.device("cpu"), int(cfg["frames"]), int(cfg["warmup"]),
+                                    int(cfg["batch"]))}}
+    if torch.cuda.is_available():
+        result["cuda"] = {"device": torch.cuda.get_device_name(0),
+                          **time_device(model, images, torch.device("cuda"), int(cfg["frames"]), int(cfg["warmup"]),
+                                        int(cfg["batch"]))}
+    atomic_write_json(root / OUTPUT, result)
+    return result
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="armpose latency", description=__doc__)
+    ap.add_argument("--params", default=None, help="params file (default: the project's params.yaml)")
+    ap.add_argument("--root", default=None, help="project root holding data/ and models/")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    res = run(load_params(args.params), args.root)
+    for dev in ("cpu", "cuda"):
+        if dev in res:
+            r = res[dev]
+            fps = {k: v for k, v in r.items() if k.endswith("_fps")}
+            print(f"latency {dev}: batch 1 median {r['batch1_median_ms']:.1f} ms, p95 {r['batch1_p95_ms']:.1f} ms; "
+                  + ", ".join(f"{k[:-4]} {v:.0f} frames/s" for k, v in fps.items()))
+    print(f"latency: wrote {Path(args.root or project_root()) / OUTPUT}")
+
+
+if __name__ == "__main__":
+    main()
