@@ -1,7 +1,7 @@
 """The narrated notebooks: paired with their percent scripts, and executable end to end.
 
 The notebooks run with papermill, in pipeline order (render, labels, pretrain, transfer stage 1,
-transfer stage 2), on the ``quick`` profile into one temporary root, with a working directory that is
+transfer stage 2, evaluation), on the ``quick`` profile into one temporary root, with a working directory that is
 neither the project nor the root.
 """
 from __future__ import annotations
@@ -18,7 +18,8 @@ from jupyter_client.kernelspec import KernelSpecManager
 from armpose.config import profile_params
 
 ROOT = Path(__file__).resolve().parents[1]
-NOTEBOOKS = ["01_render", "02_labels", "03_pretrain", "04_transfer_stage1", "05_transfer_stage2"]   # pipeline order
+NOTEBOOKS = ["01_render", "02_labels", "03_pretrain", "04_transfer_stage1", "05_transfer_stage2",
+             "06_evaluate"]   # pipeline order
 KERNEL = "python3"
 
 
@@ -69,6 +70,9 @@ def test_notebooks_execute(tmp_path):
     assert pngs(executed["03_pretrain"]) >= 2    # architecture, loss curves
     assert pngs(executed["04_transfer_stage1"]) >= 1   # loss curves
     assert pngs(executed["05_transfer_stage2"]) >= 3   # architecture, loss curves, both stages
+    assert pngs(executed["06_evaluate"]) >= 6    # figures (a)-(f)
+    for name in ("metrics.json", "results_table.md", "latency.json", "env.json"):
+        assert (tmp_root / "results" / name).exists(), name
     for stage in ("pretrain", "transfer_stage1", "transfer_stage2"):
         out = tmp_root / "models" / stage
         assert (out / "model.pt").exists() and (out / "history.csv").exists() and (out / "summary.json").exists()

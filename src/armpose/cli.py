@@ -5,6 +5,12 @@
     armpose render [...]           stage render (same as python -m armpose.stages.render)
     armpose labels [...]           stage labels (same as python -m armpose.stages.labels)
     armpose pretrain | transfer_stage1 | transfer_stage2 | train_full [...]   training stages
+    armpose sweep | latency | evaluate [...]                                 evaluation stages
+    armpose predict --checkpoint PATH [--intrinsics cam.json] [--out preds.jsonl]
+                    [--masks DIR] [--overlays DIR] IMAGE_OR_DIR...           the network on your images
+    armpose import {folder,bag} ...      turn a raw recording into the recording format
+    armpose calibrate-rig --views DIR --intrinsics cam.json --board board.json --out rig.json
+                                         mocap rig to camera optical frame (hand-eye)
 """
 from __future__ import annotations
 
@@ -13,7 +19,9 @@ import importlib
 import sys
 
 STAGES = {name: f"armpose.stages.{name}" for name in
-          ("render", "labels", "pretrain", "transfer_stage1", "transfer_stage2", "train_full")}
+          ("render", "labels", "pretrain", "transfer_stage1", "transfer_stage2", "train_full", "sweep", "latency",
+           "evaluate")}
+TOOLS = {"predict": "armpose.predict_cli", "import": "armpose.importers.cli", "calibrate-rig": "armpose.calib.cli"}
 
 
 def cmd_robots(argv: list[str]) -> int:
@@ -38,7 +46,7 @@ def cmd_profile(argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    commands = ["robots", "profile", *STAGES]
+    commands = ["robots", "profile", *STAGES, *TOOLS]
     if not argv or argv[0] in ("-h", "--help") or argv[0] not in commands:
         print(__doc__.strip())
         if argv and argv[0] not in ("-h", "--help"):
@@ -50,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
         return cmd_robots(rest)
     if cmd == "profile":
         return cmd_profile(rest)
+    if cmd in TOOLS:
+        return int(importlib.import_module(TOOLS[cmd]).main(rest) or 0)
     importlib.import_module(STAGES[cmd]).main(rest)
     return 0
 

@@ -78,9 +78,14 @@ def results_table(metrics: Mapping, data_note: str) -> str:
         if "cuda" in lat:
             out.append(f"On {lat['cuda']['device']}: median {lat['cuda']['batch1_median_ms']:.1f} ms.")
     timing = metrics.get("timing", {})
-    if timing:
-        out += ["", "Training wall time: " + ", ".join(f"{k.removesuffix('_s')} {v / 60:.1f} min"
-                                                     for k, v in timing.items()) + "."]
+    stages = [s for s in timing if isinstance(timing[s], dict) and "wall_s" in timing[s]]
+    if stages:
+        out += ["", "Training wall time: " + ", ".join(f"{s} {timing[s]['wall_s'] / 60:.1f} min "
+                                                     f"({1000 * timing[s]['s_per_step']:.0f} ms/step)" for s in stages) + "."]
+        speed = timing.get("stage1_step_speedup", {})
+        if speed:
+            out.append("A transfer stage-1 step (heads only, on cached trunk features) is "
+                       + ", ".join(f"{v:.1f}x faster than a {k} step" for k, v in speed.items()) + ".")
     out += ["", "## Still short of the paper", ""]
     out += [f"- {s}" for s in short] or ["- nothing in the table above."]
     return "\n".join(out) + "\n"

@@ -1,0 +1,176 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.6
+#   kernelspec:
+#     display_name: Python 3 (ipykernel)
+#     language: python
+#     name: python3
+# ---
+
+# %% [markdown]
+# # 06 · Evaluation: the paper's Table II and figures, regenerated
+#
+# **Stages `train_full`, `sweep`, `latency` and `evaluate`** of the pipeline (`dvc.yaml` runs the
+# same functions: `armpose.stages.<name>.run`). This notebook runs them in pipeline order and walks
+# through what they write to `results/`.
+#
+# Section VI of Miseikis et al. (2019) reports, per robot family (UR, KUKA, Panda) and for the
+# two-stage transfer model trained with 500 samples per robot type: mask accuracy, robot-type
+# accuracy and the median 3D error of the joints and of the base (their Table II), the loss
+# against the transfer-set size (Fig. 6a), the loss over the two transfer stages (Fig. 6b), the
+# error against camera distance (Fig. 6c) and example images (Fig. 5).
+#
+# **What differs from the paper, plainly.** The paper measured on real camera images of real
+# robots. Every number here is measured on *held-out synthetic renders* (PyBullet, domain
+# randomised; 20 % of the frames, never trained on) unless recorded data has been added to
+# `labels.recordings`. The default profile trains for minutes on a 2-core CPU, not for 10 hours
+# on a GTX 1080 Ti, with a network sized for that budget. Synthetic test frames are easier in one
+# way (perfect labels, no sensor artefacts beyond the simulated ones) and harder in another (random
+# textures, lighting and distractors the real lab never had).
+
+# %% tags=["parameters"]
+profile = "default"
+root = ""
+
+# %% [markdown]
+# Papermill parameters: `profile` is a file in `profiles/` (`""` = the project's `params.yaml`),
+# `root` is the folder holding `data/`, `models/` and `results/` (`""` = the project root).
+
+# %%
+# %matplotlib inline
+import json
+import logging
+from pathlib import Path
+
+from IPython.display import Image, Markdown, display
+
+from armpose import viz
+from armpose.config import load_params, profile_params, project_root
+from armpose.stages import evaluate, latency, sweep, train_full
+from armpose.viz_train import format_summary
+
+logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", force=True)
+params = profile_params(profile) if profile else load_params()
+root = Path(root) if root else project_root()
+results = root / "results"
+print(f"profile {profile or 'params.yaml'!r}; results under {results}")
+
+# %% [markdown]
+# ## Full training from scratch, for comparison
+#
+# The paper contrasts 60 hours of full training with 10 hours of two-stage transfer. `train_full`
+# trains the same network from scratch on all five robots with the same transfer set
+# (`train_full.per_type` frames per type) and the step budget in `train_full.max_steps`.
+
+# %%
+print(format_summary(train_full.run(params, root)))
+
+# %% [markdown]
+# ## The transfer-set sweep (Fig. 6a)
+#
+# Transfer learning from the pretrained UR network with N samples per robot type, for each N in
+# `sweep.sizes`, running the stages in `sweep.stages` (stage 1 alone on the CPU profile).
+
+# %%
+res = sweep.run(params, root)
+print(viz.format_table(res["rows"]))
+
+# %% [markdown]
+# ## Latency
+#
+# Forward time per frame at batch 1 (median and p95 after warm-up) and throughput at a larger
+# batch, on this machine's CPU with `latency.threads` threads, and on CUDA when present. The paper
+# reports 19-23 ms on a GTX 1080 Ti; the target for this 2-core CPU is a median of 15 ms or less.
+
+# %%
+print(json.dumps(latency.run(params, root), indent=1))
+
+# %% [markdown]
+# ## Evaluation on the held-out split
+
+# %%
+metrics = evaluate.run(params, root)
+display(Markdown((results / "results_table.md").read_text()))
+
+# %% [markdown]
+# Per robot type, and the type confusion matrix (rows: true type, columns: predicted):
+
+# %%
+by_type = metrics["transfer"]["test"]["by_type"]
+print(viz.format_table([{"type": t, **{k: v for k, v in m.items() if k != "per_joint_median_cm"}}
+                        for t, m in by_type.items()]))
+conf = metrics["transfer"]["test"]["confusion"]
+print("\n".join([" " * 7 + " ".join(f"{t:>6}" for t in conf["labels"])]
+                + [f"{t:>6} " + " ".join(f"{n:>6}" for n in row) for t, row in zip(conf["labels"], conf["matrix"])]))
+
+# %% [markdown]
+# ## (a) Loss and time against transfer-set size (Fig. 6a)
+#
+# More samples per type cost more time per epoch but not per step; the final loss should fall
+# with N. The paper found 500 per type a good trade-off.
+
+# %%
+display(Image(filename=str(results / "figures" / "a_transfer_sweep.png")))
+
+# %% [markdown]
+# ## (b) Loss over pretraining and the two transfer stages (Fig. 6b)
+#
+# The loss jumps when KUKA and Panda frames enter (stage 1), falls while the heads adapt, and falls
+# further once stage 2 unlocks `trunk.late` and the mask decoder. Stage 1 has no mask term: its
+# mask branch is frozen, so it trains on cached trunk features without computing the mask.
+
+# %%
+display(Image(filename=str(results / "figures" / "b_loss_curve.png")))
+
+# %% [markdown]
+# ## (c) Joint error against camera distance (Fig. 6c)
+#
+# A monocular network must infer depth from apparent size; its error grows with distance, as the
+# paper's does, and faster here because the robot covers fewer pixels at our 1.2-3.5 m range.
+
+# %%
+display(Image(filename=str(results / "figures" / "c_error_by_distance.png")))
+
+# %% [markdown]
+# ## (d) Test images (Fig. 5)
+#
+# One column per family. Row 1: estimated joints (red circles) against the truth (green crosses);
+# row 2: the estimated mask; row 3: the estimated base (red) against the truth (green).
+
+# %%
+display(Image(filename=str(results / "figures" / "d_examples.png")))
+
+# %% [markdown]
+# ## (e) Two-stage transfer against full training
+#
+# Accuracy per family and training wall time of both routes. The paper's claim is that transfer
+# reaches comparable accuracy for a sixth of the time; on a CPU budget the question is which route
+# buys more accuracy per minute.
+
+# %%
+display(Image(filename=str(results / "figures" / "e_transfer_vs_full.png")))
+
+# %% [markdown]
+# ## (f) Latency
+
+# %%
+if (results / "figures" / "f_latency.png").exists():
+    display(Image(filename=str(results / "figures" / "f_latency.png")))
+
+# %% [markdown]
+# ## What helps and what hurts
+#
+# - **Helps:** the image-plane losses (`reproj`, `heatmap`, ours) give the keypoint attention maps a
+#   direct signal, so 2D localisation is learned in far fewer steps than from the 3D loss alone; the
+#   stride-8 keypoint neck; cached trunk features make stage 1 nearly free.
+# - **Hurts:** depth. Most of the 3D error is along the viewing ray: the network must judge distance
+#   from apparent size, and UR3, UR5 and UR10 look alike up to scale. Small robots in the image
+#   (2-5 % of the pixels, against the paper's 5-22 %) and minutes of CPU training make it worse.
+# - **Synthetic against real:** perfect labels, but also random textures and distractor robots the
+#   paper's test set did not have. Real recordings can be added (`armpose import`, `labels.recordings`)
+#   and are then reported separately under `by_source` in `results/metrics.json`.

@@ -1,0 +1,200 @@
+"""``armpose predict``: the network on a user's own images, with their own camera.
+
+The network was trained on one canonical camera: the rectified 480x360 camera of
+``params.yaml`` (``base.camera``), scaled and centre-cropped to the 256x212 network input.
+An image from another pinhole camera is warped to that network input before the network sees
+it: since both are pinhole cameras with the same optical frame, the warp is an axis-aligned
+scale plus shift (scale, crop or pad about the principal point), and 3D outputs in the
+camera optical frame (metres; x right, y down, z forward) need no change. 2D outputs are
+projected with the user's intrinsics, and the mask is warped back to the input image.
+
+Output per image (one JSON object): ``image``, ``robot_type``, ``type_probs``, ``base_xyz``,
+``joints_xyz`` (one per joint of the predicted type), ``joints_uv`` (pixels of the input
+image), ``mask`` (PNG path, when a mask folder is given), ``latency_ms`` (network forward).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import cv2
+import numpy as np
+import torch
+
+from armpose.geometry import Camera
+from armpose.io import atomic_write_bytes
+from armpose.robots import get_robot
+from armpose.train import load_checkpoint
+
+log = logging.getLogger(__name__)
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+
+
+class PredictError(ValueError):
+    """A file that cannot be processed; the message names it."""
+
+
+@dataclass(frozen=True)
+class Warp:
+    """Network-input pixel ``n`` <-> source pixel ``s``: ``s = scale * n + offset`` per axis."""
+
+    scale: np.ndarray     # (2,) source pixels per network pixel, x and y
+    offset: np.ndarray    # (2,)
+
+    def to_source(self, uv: np.ndarray) -> np.ndarray:
+        return np.asarray(uv, np.float64) * self.scale + self.offset
+
+    def matrix(self) -> np.ndarray:
+        """2x3 affine from network-input pixels to source pixels (for ``cv2.warpAffine`` with WARP_INVERSE_MAP)."""
+        return np.array([[self.scale[0], 0, self.offset[0]], [0, self.scale[1], self.offset[1]]])
+
+
+def network_camera(base: dict) -> Camera:
+    """The network-input camera: the canonical camera of ``base`` scaled and cropped to ``input_size``."""
+    size = base["input_size"]
+    return Camera.from_dict(base["camera"]).scale_crop(int(size["width"]), int(size["height"]))[0]
+
+
+def warp_for(source: Camera, net: Camera) -> Warp:
+    """The pixel map from the network camera to ``source``: same rays, OpenCV pixel centres."""
+    scale = np.array([source.fx / net.fx, source.fy / net.fy])
+    offset = np.array([source.cx - scale[0] * net.cx, source.cy - scale[1] * net.cy])
+    return Warp(scale, offset)
+
+
+def to_network(image: np.ndarray, warp: Warp, net: Camera) -> np.ndarray:
+    """``image`` (H, W, 3) RGB uint8 resampled into the network camera; outside the source is black."""
+    return cv2.warpAffine(image, warp.matrix(), (net.width, net.height),
+                          flags=cv2.INTER_AREA | cv2.WARP_INVERSE_MAP if warp.scale.min() > 1 else
+                          cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def mask_to_source(mask: np.ndarray, warp: Warp, source: Camera) -> np.ndarray:
+    """A network-input mask (h, w) bool warped to the source image (H, W) bool."""
+    inv = np.array([[1 / warp.scale[0], 0, -warp.offset[0] / warp.scale[0]],
+                    [0, 1 / warp.scale[1], -warp.offset[1] / warp.scale[1]]])
+    out = cv2.warpAffine(mask.astype(np.uint8) * 255, inv, (source.width, source.height),
+                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderValue=0)
+    return out >= 128
+
+
+def read_image(path: Path) -> np.ndarray:
+    """RGB uint8 (H, W, 3); :class:`PredictError` naming the file if it is not a readable image."""
+    if not path.is_file():
+        raise PredictError(f"{path}: no such file")
+    data = np.fromfile(str(path), np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    if img is None:
+        raise PredictError(f"{path}: not a readable image (PNG or JPEG expected, {data.size} bytes)")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def load_intrinsics(path: Path) -> Camera:
+    """A :class:`Camera` from JSON with width, height, fx, fy, cx, cy; errors name the file and key."""
+    import json
+    try:
+        d = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as err:
+        raise PredictError(f"{path}: not readable intrinsics JSON ({err})") from err
+    missing = [k for k in ("width", "height", "fx", "fy", "cx", "cy") if k not in d]
+    if missing:
+        raise PredictError(f"{path}: intrinsics lack {missing}")
+    cam = Camera.from_dict(d)
+    if cam.fx <= 0 or cam.fy <= 0 or cam.width <= 0 or cam.height <= 0:
+        raise PredictError(f"{path}: intrinsics must be positive, got {d}")
+    return cam
+
+
+class Predictor:
+    """A loaded network plus its camera, robot types and joint counts."""
+
+    def __init__(self, checkpoint: Path | str, device: str = "cpu", model=None):
+        from armpose.evaluate import load_model
+        ckpt_path = Path(checkpoint)
+        if model is None:
+            try:
+                model, config = load_model(ckpt_path, device)
+            except (ValueError, KeyError, RuntimeError) as err:
+                raise PredictError(f"{ckpt_path}: cannot use this checkpoint ({err})") from err
+        else:
+            config = load_checkpoint(ckpt_path)["config"]
+        self.model, self.device = model, device
+        self.base = config["base"]
+        self.types = list(self.base["robot_types"])
+        self.net = network_camera(self.base)
+        self.canonical = Camera.from_dict(self.base["camera"])
+        self.num_joints = [get_robot(t).num_joints for t in self.types]
+
+    @torch.no_grad()
+    def __call__(self, image: np.ndarray, camera: Camera | None = None) -> dict:
+        """Prediction for one RGB uint8 image from ``camera`` (default: the canonical camera)."""
+        camera = camera or self.canonical
+        h, w = image.shape[:2]
+        if (w, h) != (camera.width, camera.height):
+            raise PredictError(f"image is {w}x{h} but the camera is {camera.width}x{camera.height}"
+                               + ("" if camera is not self.canonical else "; pass --intrinsics for another camera"))
+        warp = warp_for(camera, self.net)
+        x = torch.from_numpy(to_network(image, warp, self.net)).permute(2, 0, 1).float().div(255)[None]
+        x = x.to(self.device).contiguous(memory_format=torch.channels_last)
+        t = time.perf_counter()
+        out = self.model(x)
+        latency = 1000 * (time.perf_counter() - t)
+        probs = out["type_logits"][0].float().softmax(-1).cpu().numpy()
+        k = int(probs.argmax())
+        joints = out["joints"][0, : self.num_joints[k]].double().cpu().numpy()
+        base = out["base"][0].double().cpu().numpy()
+        uv = camera.project(joints)
+        mask = mask_to_source(out["mask_logits"][0, 0].cpu().numpy() > 0, warp, camera)
+        return {"robot_type": self.types[k], "type_probs": {t: float(p) for t, p in zip(self.types, probs)},
+                "base_xyz": base.tolist(), "joints_xyz": joints.tolist(), "joints_uv": uv.tolist(),
+                "latency_ms": round(latency, 3), "_mask": mask}
+
+
+def expand_inputs(inputs: Sequence[str | Path]) -> list[Path]:
+    """Files as given; folders expand to their image files, sorted."""
+    out = []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            out += sorted(f for f in p.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
+        else:
+            out.append(p)
+    return out
+
+
+def write_mask(mask: np.ndarray, folder: Path, image: Path) -> Path:
+    path = Path(folder) / f"{image.stem}_mask.png"
+    ok, buf = cv2.imencode(".png", mask.astype(np.uint8) * 255)
+    atomic_write_bytes(path, buf.tobytes())
+    return path
+
+
+def predict(images: Sequence[str | Path], checkpoint: Path | str, intrinsics: Camera | str | Path | None = None,
+            masks: Path | None = None, device: str = "cpu", errors: list | None = None, model=None) -> list[dict]:
+    """One result dict per readable image (schema in the module docstring).
+
+    ``intrinsics``: a :class:`Camera` or a JSON path; ``None`` means the canonical camera of the
+    checkpoint's params. Files that fail are skipped with a warning; pass a list as ``errors``
+    to collect their messages. ``model`` replaces the checkpoint's network (tests use an oracle).
+    """
+    predictor = Predictor(checkpoint, device, model=model)
+    camera = load_intrinsics(Path(intrinsics)) if isinstance(intrinsics, (str, Path)) else intrinsics
+    results = []
+    for path in expand_inputs(images):
+        try:
+            res = predictor(read_image(path), camera)
+        except PredictError as err:
+            msg = str(err) if str(err).startswith(str(path)) else f"{path}: {err}"
+            log.warning("%s", msg)
+            if errors is not None:
+                errors.append(msg)
+            continue
+        mask = res.pop("_mask")
+        row = {"image": str(path), **res}
+        if masks is not None:
+            row["mask"] = str(write_mask(mask, masks, path))
+        results.append(row)
+    return results

@@ -1,0 +1,144 @@
+"""``armpose predict``: the warp round trip with an oracle network, the JSONL schema, bad input."""
+import json
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from armpose.config import profile_params
+from armpose.geometry import Camera
+from armpose.model import build_model
+from armpose.predict import network_camera, predict
+from armpose.predict_cli import main as predict_main
+from armpose.train import save_checkpoint
+
+OTHER = Camera(640, 480, 600.0, 590.0, 331.0, 236.5)      # a user's camera, not the canonical one
+SCHEMA = {"image", "robot_type", "type_probs", "base_xyz", "joints_xyz", "joints_uv", "latency_ms"}
+
+
+class BlobOracle(nn.Module):
+    """Stands in for the network: finds the one bright blob in its input (intensity centroid,
+    in network-input pixels), and returns every joint and the base at that pixel's ray at
+    depth ``z``; predicts robot type ``type_index``; the mask is the bright pixels."""
+
+    def __init__(self, net: Camera, z: float, type_index: int, num_types: int = 5, slots: int = 7):
+        super().__init__()
+        self.net, self.z, self.k, self.n, self.slots = net, z, type_index, num_types, slots
+
+    def forward(self, x):
+        gray = x.float().mean(1)[0]
+        w = gray.clamp(min=0)
+        ys, xs = torch.meshgrid(torch.arange(gray.shape[0], dtype=torch.float64),
+                                torch.arange(gray.shape[1], dtype=torch.float64), indexing="ij")
+        s = w.double().sum()
+        u, v = float((w * xs).sum() / s), float((w * ys).sum() / s)
+        p = torch.tensor([(u - self.net.cx) / self.net.fx * self.z, (v - self.net.cy) / self.net.fy * self.z, self.z])
+        logits = torch.full((1, self.n), -5.0)
+        logits[0, self.k] = 5.0
+        return {"joints": p.expand(1, self.slots, 3).clone(), "base": p[None].clone(), "type_logits": logits,
+                "mask_logits": (gray > 0.5).float()[None, None] * 20 - 10}
+
+
+def blob_image(cam: Camera, point: np.ndarray, radius_px: float = 5.0) -> np.ndarray:
+    """Black image of ``cam`` with one anti-aliased white disc centred on ``point``'s projection."""
+    u, v = cam.project(point)
+    ys, xs = np.mgrid[0:cam.height, 0:cam.width]
+    d = np.hypot(xs - u, ys - v)
+    img = np.clip(radius_px + 0.5 - d, 0, 1)
+    return (np.repeat(img[..., None], 3, 2) * 255).round().astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("predict")
+    base = profile_params("quick")["base"]
+    base["model"] = {"width": 4}
+    ckpt = tmp / "model.pt"
+    save_checkpoint(ckpt, build_model(base["model"]), None, None, 0, "transfer_stage2",
+                    {"stage": "transfer_stage2", "cfg": {}, "base": base})
+    return tmp, base, ckpt
+
+
+def _write_png(path, rgb):
+    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+
+POINTS = np.array([[0.12, -0.08, 1.6], [-0.35, 0.2, 2.4], [0.5, 0.3, 3.1], [-0.1, -0.25, 1.2]])
+
+
+def test_warp_round_trip_with_an_oracle_is_within_one_pixel(setup):
+    tmp, base, ckpt = setup
+    canonical = Camera.from_dict(base["camera"])
+    net = network_camera(base)
+    (tmp / "other").mkdir()
+    (tmp / "canon").mkdir()
+    cams = (json.dumps(OTHER.to_dict()),)
+    (tmp / "other.json").write_text(cams[0])
+    for i, p in enumerate(POINTS):
+        _write_png(tmp / "other" / f"{i}.png", blob_image(OTHER, p))
+        _write_png(tmp / "canon" / f"{i}.png", blob_image(canonical, p))
+    type_index = base["robot_types"].index("iiwa")
+    for i, p in enumerate(POINTS):
+        oracle = BlobOracle(net, float(p[2]), type_index)
+        other = predict([tmp / "other" / f"{i}.png"], ckpt, tmp / "other.json", model=oracle)[0]
+        canon = predict([tmp / "canon" / f"{i}.png"], ckpt, model=oracle)[0]
+        assert other["robot_type"] == "iiwa" and len(other["joints_uv"]) == 7
+        err_other = np.abs(np.asarray(other["joints_uv"][0]) - OTHER.project(p)).max()
+        err_canon = np.abs(np.asarray(canon["joints_uv"][0]) - canonical.project(p)).max()
+        assert err_other < 1.0, (i, other["joints_uv"][0], OTHER.project(p))
+        assert err_canon < 1.0, (i, canon["joints_uv"][0], canonical.project(p))
+        # the same 3D answer from both cameras: the warp changes pixels, never the optical frame
+        np.testing.assert_allclose(other["joints_xyz"][0], canon["joints_xyz"][0], atol=0.01 * p[2])
+
+
+def test_a_point_outside_the_canonical_view_is_padded_not_lost(setup):
+    tmp, base, ckpt = setup
+    wide = Camera(320, 240, 150.0, 150.0, 159.5, 119.5)          # wider field of view: scaled up and cropped
+    p = np.array([0.2, 0.1, 2.0])
+    _write_png(tmp / "wide.png", blob_image(wide, p, 3.0))
+    oracle = BlobOracle(network_camera(base), 2.0, 0)
+    row = predict([tmp / "wide.png"], ckpt, wide, model=oracle)[0]
+    assert np.abs(np.asarray(row["joints_uv"][0]) - wide.project(p)).max() < 1.0
+
+
+def test_cli_writes_jsonl_in_the_schema_and_reports_bad_files(setup, capsys):
+    tmp, base, ckpt = setup
+    folder = tmp / "mixed"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    cam = Camera.from_dict(base["camera"])
+    for i in range(2):
+        _write_png(folder / f"ok{i}.png", rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8))
+    (folder / "broken.png").write_text("not an image")
+    _write_png(folder / "small.png", np.zeros((10, 12, 3), np.uint8))
+    out, masks, overlays = tmp / "preds.jsonl", tmp / "masks", tmp / "overlays"
+    rc = predict_main(["--checkpoint", str(ckpt), "--out", str(out), "--masks", str(masks), "--overlays",
+                       str(overlays), str(folder), str(tmp / "missing.png")])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert "broken.png" in err and "not a readable image" in err
+    assert "small.png" in err and "12x10" in err
+    assert "missing.png" in err
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [r["image"].rsplit("/", 1)[1] for r in rows] == ["ok0.png", "ok1.png"]
+    for r in rows:
+        assert set(r) == SCHEMA | {"mask"}
+        assert r["robot_type"] in base["robot_types"] and set(r["type_probs"]) == set(base["robot_types"])
+        assert abs(sum(r["type_probs"].values()) - 1) < 1e-5
+        n = {"ur3": 6, "ur5": 6, "ur10": 6, "iiwa": 7, "panda": 7}[r["robot_type"]]
+        assert np.asarray(r["joints_xyz"]).shape == (n, 3) and np.asarray(r["joints_uv"]).shape == (n, 2)
+        assert len(r["base_xyz"]) == 3 and r["latency_ms"] > 0
+        m = cv2.imread(r["mask"], cv2.IMREAD_GRAYSCALE)
+        assert m.shape == (cam.height, cam.width) and set(np.unique(m)) <= {0, 255}
+    assert len(list(overlays.glob("*_overlay.png"))) == 2
+
+
+def test_a_checkpoint_of_another_format_is_one_clear_error(setup, capsys):
+    tmp, base, ckpt = setup
+    bad = tmp / "old.pt"
+    torch.save({"format": 0, "model": {}}, bad)
+    rc = predict_main(["--checkpoint", str(bad), str(tmp / "canon")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "old.pt" in err and "format" in err
