@@ -9,6 +9,7 @@
     armpose predict --checkpoint PATH [--intrinsics cam.json] [--out preds.jsonl]
                     [--masks DIR] [--overlays DIR] IMAGE_OR_DIR...           the network on your images
     armpose import {folder,bag} ...      turn a raw recording into the recording format
+    armpose calibrate --checkpoint PATH --joints JOINTS.csv IMAGE...   camera-to-robot pose from images
     armpose calibrate-rig --views DIR --intrinsics cam.json --board board.json --out rig.json
                                          mocap rig to camera optical frame (hand-eye)
 """
@@ -21,7 +22,8 @@ import sys
 STAGES = {name: f"armpose.stages.{name}" for name in
           ("render", "labels", "pretrain", "transfer_stage1", "transfer_stage2", "train_full", "sweep", "latency",
            "evaluate")}
-TOOLS = {"predict": "armpose.predict_cli", "import": "armpose.importers.cli", "calibrate-rig": "armpose.calib.cli"}
+TOOLS = {"predict": "armpose.predict_cli", "import": "armpose.importers.cli", "calibrate-rig": "armpose.calib.cli",
+         "calibrate": "armpose.calibrate_cli"}
 
 
 def cmd_robots(argv: list[str]) -> int:
