@@ -69,6 +69,13 @@ def results_table(metrics: Mapping, data_note: str) -> str:
         fv = full.get(f, {})
         vals += [f"{fv.get('joint_median_cm', float('nan')):.2f}", f"{100 * fv.get('type_accuracy', float('nan')):.1f}"]
         out.append(f"| {f} | " + " | ".join(vals) + " |")
+    recorded = metrics["transfer"]["test"].get("by_source", {}).get("recorded")
+    if recorded:
+        out += ["", "## Recorded test recordings (the real-world path), two-stage transfer", "",
+                "| Family | frames | mask acc % | type acc % | joint median cm | base median cm |", "|---|---:|---:|---:|---:|---:|"]
+        for f, m in recorded["by_family"].items():
+            out.append(f"| {f} | {m['frames']} | {100 * m['mask_accuracy']:.1f} | {100 * m['type_accuracy']:.1f} | "
+                       f"{m['joint_median_cm']:.2f} | {m['base_median_cm']:.2f} |")
     lat = metrics.get("latency", {})
     if "cpu" in lat:
         c = lat["cpu"]
