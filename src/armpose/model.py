@@ -18,10 +18,10 @@ Architecture (``width`` = w, 32 by default; strides relative to the input)::
                   BasicBlock/2                                          c4  stride 32, 8w
     mask_decoder  FPN: 1x1 laterals of c1..c4 to w channels, top-down bilinear upsample + add,
                   separable 3x3 at stride 4, 1x1 to one logit, bilinear upsample to (H, W)
-    heads.neck    1x1 laterals of c2, c3, c4 to 4w channels, summed at stride 8, + x/y CoordConv
+    heads.neck    1x1 laterals of c2, c3, c4 to 2w channels, summed at stride 8, + x/y CoordConv
       .joints     KeypointHead(K=max_joints)  \
       .base       KeypointHead(K=1)            } read trunk features only, never the decoder
-      .robot_type avg+max pool of c4 -> MLP -> num_types logits
+      .robot_type [avg+max pool of c4, joint-attention-pooled features] -> MLP -> num_types logits
 
 Every conv is conv-BN(-ReLU); BasicBlock is ResNet's (two 3x3, projection shortcut when the
 shape changes); "/2" is stride 2. At w=32: about 0.3 GMAC per 212x256 frame, 1.9 M parameters.
@@ -191,7 +191,7 @@ class KeypointHead(nn.Module):
                  depth: float = DEFAULT_DEPTH):
         super().__init__()
         self.k = k
-        self.features = nn.Sequential(conv_bn_relu(cin, hidden, 1), conv_bn_relu(hidden, hidden, 3, groups=hidden))
+        self.features = conv_bn_relu(cin, hidden, 1)   # the trunk already gives wide context
         self.attention = nn.Conv2d(hidden, k, 1)
         self.mlp = nn.Sequential(PerSlotLinear(k, 2 * hidden + 2, hidden), nn.ReLU(inplace=True),
                                  PerSlotLinear(k, hidden, 3))
@@ -200,8 +200,9 @@ class KeypointHead(nn.Module):
         self.log_depth = nn.Parameter(torch.tensor(math.log(depth)))
         self.half_fov_tan = nn.Parameter(torch.tensor([float(t) for t in half_fov_tan]))
 
-    def forward(self, x: torch.Tensor, coords: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(B, K, 3)`` points in the camera frame (metres) and ``(B, K, h, w)`` attention logits."""
+    def forward(self, x: torch.Tensor, coords: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(B, K, 3)`` points in the camera frame (metres), ``(B, K, h, w)`` attention logits and
+        ``(B, C)`` the attention-pooled features averaged over the K points (robot-centred)."""
         f = self.features(x)                                               # (B, C, h, w)
         logits = self.attention(f)                                         # (B, K, h, w)
         attn = logits.flatten(2).softmax(-1)                               # (B, K, hw)
@@ -211,16 +212,20 @@ class KeypointHead(nn.Module):
         out = self.mlp(torch.cat([pooled, glob, uv], -1))                  # (B, K, 3)
         z = torch.exp(self.log_depth + 3 * torch.tanh(out[..., 2] / 3))
         xy = z[..., None] * (uv + out[..., :2]) * self.half_fov_tan
-        return torch.cat([xy, z[..., None]], -1), logits
+        return torch.cat([xy, z[..., None]], -1), logits, pooled.mean(1)
 
 
 class TypeHead(nn.Module):
-    def __init__(self, cin: int, hidden: int, num_types: int):
-        super().__init__()
-        self.mlp = nn.Sequential(nn.Linear(2 * cin, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, num_types))
+    """Robot type from global c4 statistics (avg + max) and robot-centred keypoint features."""
 
-    def forward(self, c4: torch.Tensor) -> torch.Tensor:
-        return self.mlp(torch.cat([c4.mean((2, 3)), c4.amax((2, 3))], 1))
+    def __init__(self, cin: int, hidden: int, num_types: int, cin_points: int = 0):
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(2 * cin + cin_points, hidden), nn.ReLU(inplace=True),
+                                 nn.Linear(hidden, num_types))
+
+    def forward(self, c4: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
+        parts = [c4.mean((2, 3)), c4.amax((2, 3))] + ([points] if points is not None else [])
+        return self.mlp(torch.cat(parts, 1))
 
 
 class KeypointNeck(nn.Module):
@@ -245,19 +250,19 @@ class Heads(nn.Module):
 
     def __init__(self, w: int, num_types: int, max_joints: int, half_fov_tan, depth: float):
         super().__init__()
-        self.neck = KeypointNeck(w, 4 * w)
-        self.joints = KeypointHead(4 * w + 2, max_joints, 4 * w, half_fov_tan, depth)
-        self.base = KeypointHead(4 * w + 2, 1, 2 * w, half_fov_tan, depth)
-        self.robot_type = TypeHead(8 * w, 4 * w, num_types)
+        self.neck = KeypointNeck(w, 2 * w)
+        self.joints = KeypointHead(2 * w + 2, max_joints, 2 * w, half_fov_tan, depth)
+        self.base = KeypointHead(2 * w + 2, 1, w, half_fov_tan, depth)
+        self.robot_type = TypeHead(8 * w, 4 * w, num_types, cin_points=2 * w)
 
     def forward(self, feats: list[torch.Tensor]) -> dict[str, torch.Tensor]:
         c2, c3, c4 = feats[-3], feats[-2], feats[-1]
         x = self.neck(c2, c3, c4)
         coords = coord_channels(x)
         x = torch.cat([x, coords.expand(x.shape[0], -1, -1, -1)], 1)
-        joints, joints_attention = self.joints(x, coords)
-        base, base_attention = self.base(x, coords)
-        return {"joints": joints, "base": base[:, 0], "type_logits": self.robot_type(c4),
+        joints, joints_attention, on_robot = self.joints(x, coords)
+        base, base_attention, _ = self.base(x, coords)
+        return {"joints": joints, "base": base[:, 0], "type_logits": self.robot_type(c4, on_robot),
                 "joints_attention": joints_attention, "base_attention": base_attention}
 
 

@@ -122,3 +122,26 @@ def environment(root: Path, profile_note: str) -> dict:
 
 def dumps(obj) -> str:
     return json.dumps(obj, indent=2, sort_keys=False)
+
+
+README_START, README_END = "<!-- results:start -->", "<!-- results:end -->"
+
+
+def update_readme(root: Path) -> bool:
+    """Copy ``results/results_table.md`` (minus its title) between the README's result markers.
+    Returns True if the README changed. ``python -m armpose.report`` runs it."""
+    readme, table = Path(root) / "README.md", Path(root) / "results" / "results_table.md"
+    text, body = readme.read_text(), table.read_text().split("\n", 1)[1].strip()
+    if README_START not in text or README_END not in text:
+        raise ValueError(f"{readme}: no {README_START} ... {README_END} markers")
+    head, rest = text.split(README_START, 1)
+    new = f"{head}{README_START}\n{body}\n{README_END}{rest.split(README_END, 1)[1]}"
+    if new != text:
+        from armpose.io import atomic_write_text
+        atomic_write_text(readme, new)
+    return new != text
+
+
+if __name__ == "__main__":
+    from armpose.config import project_root
+    print("README updated" if update_readme(project_root()) else "README already up to date")

@@ -167,7 +167,7 @@ def architecture_figure(params: dict, model: nn.Module | None = None) -> Figure:
          f"BasicBlock/2\n-> c4 (/32, {8 * w} ch)\n\n{n('trunk.late')}", color["trunk.late"])
     _box(ax, 9.0, 6.3, 2.8, 1.7, f"mask_decoder\nFPN on c1..c4, 3x3 at /4,\n1x1 -> 1 logit, upsample\n"
          f"{n('mask_decoder')}", color["mask_decoder"])
-    _box(ax, 5.5, 0.4, 2.5, 1.9, f"heads.neck\n1x1 laterals of c2, c3, c4\nsummed at /8 ({4 * w} ch)\n"
+    _box(ax, 5.5, 0.4, 2.5, 1.9, f"heads.neck\n1x1 laterals of c2, c3, c4\nsummed at /8 ({2 * w} ch)\n"
          f"{n('heads.neck')}", color["heads.neck"])
     _box(ax, 9.0, 4.3, 2.8, 1.4, f"heads.joints\nspatial softmax x {k},\nlog-depth, pinhole\n"
          f"{n('heads.joints')}", color["heads.joints"])
