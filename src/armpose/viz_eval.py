@@ -53,6 +53,13 @@ def loss_curve_rows(histories: Mapping[str, Sequence[Mapping]]) -> list[dict]:
     return rows
 
 
+def trailing_mean(y: np.ndarray, k: int) -> np.ndarray:
+    """Mean of the last ``k`` values at each point (fewer at the start): no edge artefacts."""
+    c = np.cumsum(np.concatenate([[0.0], y]))
+    n = np.minimum(np.arange(1, len(y) + 1), k)
+    return (c[1:] - c[np.arange(1, len(y) + 1) - n]) / n
+
+
 def loss_curve_figure(rows: Sequence[Mapping], smooth: int = 25) -> Figure:
     """(b) paper Fig. 6b: training loss against iterations, transfer stages 1 and 2 shaded."""
     fig, ax = plt.subplots(figsize=(7, 3.6))
@@ -60,16 +67,17 @@ def loss_curve_figure(rows: Sequence[Mapping], smooth: int = 25) -> Figure:
     stages = [r["stage"] for r in rows]
     for term, style in (("total", "-"), ("joints", "--"), ("base", ":")):
         y = np.array([r[term] for r in rows], float)
-        k = max(1, min(smooth, len(y)))
-        ys = np.convolve(y, np.ones(k) / k, mode="same") if len(y) > k else y
-        ax.plot(step, ys, style, lw=1, label=term)
+        for i, stage in enumerate(dict.fromkeys(stages)):      # smoothed within each stage only
+            sel = np.array([n == stage for n in stages])
+            ax.plot(step[sel], trailing_mean(y[sel], smooth), style, lw=1, color=f"C{('total', 'joints', 'base').index(term)}",
+                    label=term if i == 0 else None)
     for stage, (color, alpha) in STAGE_SHADES.items():
         s = step[[i for i, n in enumerate(stages) if n == stage]]
         if len(s):
             ax.axvspan(s.min(), s.max(), color=color, alpha=alpha, label=stage.replace("transfer_", ""))
     ax.set_yscale("log")
     ax.set_xlabel("iteration (pretraining, then transfer)")
-    ax.set_ylabel("training loss (moving average)")
+    ax.set_ylabel("training loss (trailing mean)")
     ax.legend(fontsize=7)
     ax.set_title("Training loss over the stages (Fig. 6b)")
     fig.tight_layout()
