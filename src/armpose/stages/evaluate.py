@@ -106,6 +106,18 @@ def training_minutes(root: Path, stages: list[str]) -> float:
     return total / 60
 
 
+def camera_pose_metrics(pred_truth: tuple[dict, dict], data_dir: Path, root: Path, robot_types: list[str]) -> dict:
+    """Single-image camera-to-robot pose errors per family (:mod:`armpose.pose_eval`)."""
+    from armpose.labels.dataset import load_dataset
+    from armpose.pose_eval import frame_pose_errors, summarise_poses
+    pred, truth = pred_truth
+    arrays, index = load_dataset(data_dir)
+    errors = frame_pose_errors(pred, truth, index, arrays, root)
+    fams = np.array(family_of(robot_types))[truth["type"]]
+    return {"by_family": {f: summarise_poses(errors, np.flatnonzero(fams == f)) for f in dict.fromkeys(fams.tolist())},
+            "all": summarise_poses(errors, np.arange(len(fams)))}
+
+
 TRAINING_STAGES = ("pretrain", "transfer_stage1", "transfer_stage2", "train_full")
 
 
@@ -137,6 +149,7 @@ def run(params: dict, root: Path | None = None) -> dict:
         m, pred, truth = evaluate_checkpoint(root / ckpt, data_dir, base, "test", int(cfg["batch_size"]))
         metrics[name] = {"checkpoint": ckpt, "test": m}
         preds[name] = (pred, truth)
+    metrics["transfer"]["test"]["camera_pose"] = camera_pose_metrics(preds["transfer"], data_dir, root, types)
     latency_path = root / RESULTS / "latency.json"
     metrics["latency"] = json.loads(latency_path.read_text()) if latency_path.exists() else {}
     metrics["timing"] = training_timing(root)
