@@ -18,7 +18,7 @@ from jupyter_client.kernelspec import KernelSpecManager
 from armpose.config import profile_params
 
 ROOT = Path(__file__).resolve().parents[1]
-NOTEBOOKS = ["01_render", "02_labels", "03_pretrain", "04_transfer_stage1", "05_transfer_stage2",
+NOTEBOOKS = ["00_record", "01_render", "02_labels", "03_pretrain", "04_transfer_stage1", "05_transfer_stage2",
              "06_evaluate"]   # pipeline order
 KERNEL = "python3"
 

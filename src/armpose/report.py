@@ -143,6 +143,7 @@ def update_readme(root: Path) -> bool:
     Returns True if the README changed. ``python -m armpose.report`` runs it."""
     readme, table = Path(root) / "README.md", Path(root) / "results" / "results_table.md"
     text, body = readme.read_text(), table.read_text().split("\n", 1)[1].strip()
+    body = "\n".join("#" + line if line.startswith("## ") else line for line in body.splitlines())  # under ## Results
     if README_START not in text or README_END not in text:
         raise ValueError(f"{readme}: no {README_START} ... {README_END} markers")
     head, rest = text.split(README_START, 1)

@@ -1,0 +1,1 @@
+"""Simulated free-moving-camera recording sessions (the record stage): motion and one session."""
