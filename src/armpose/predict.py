@@ -165,8 +165,9 @@ def expand_inputs(inputs: Sequence[str | Path]) -> list[Path]:
     return out
 
 
-def write_mask(mask: np.ndarray, folder: Path, image: Path) -> Path:
-    path = Path(folder) / f"{image.stem}_mask.png"
+def write_mask(mask: np.ndarray, folder: Path, stem: str) -> Path:
+    """The mask (bool, input size) as ``<folder>/<stem>_mask.png`` (255 = robot), atomically."""
+    path = Path(folder) / f"{stem}_mask.png"
     ok, buf = cv2.imencode(".png", mask.astype(np.uint8) * 255)
     atomic_write_bytes(path, buf.tobytes())
     return path
@@ -195,6 +196,6 @@ def predict(images: Sequence[str | Path], checkpoint: Path | str, intrinsics: Ca
         mask = res.pop("_mask")
         row = {"image": str(path), **res}
         if masks is not None:
-            row["mask"] = str(write_mask(mask, masks, path))
+            row["mask"] = str(write_mask(mask, masks, path.stem))
         results.append(row)
     return results

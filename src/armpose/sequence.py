@@ -35,8 +35,7 @@ import numpy as np
 from armpose.camera_pose import robust_rigid, to_matrix
 from armpose.extrinsics import correspondences, kinematics
 from armpose.geometry import Camera, matrix_to_quat, quat_to_matrix
-from armpose.io import atomic_write_bytes
-from armpose.predict import PredictError, Predictor, expand_inputs, load_intrinsics, read_image
+from armpose.predict import PredictError, Predictor, expand_inputs, load_intrinsics, read_image, write_mask
 from armpose.robots.registry import get_robot
 from armpose.tracking import KalmanFilter3D, OneEuroFilter
 
@@ -194,14 +193,6 @@ def _padded(joints, slots: int) -> np.ndarray:
     return out
 
 
-def write_frame_mask(mask: np.ndarray, folder: Path, name: str) -> Path:
-    """The mask (bool, input size) as ``<folder>/<frame_stem>_mask.png`` (255 = robot)."""
-    path = Path(folder) / f"{frame_stem(name)}_mask.png"
-    ok, buf = cv2.imencode(".png", mask.astype(np.uint8) * 255)
-    atomic_write_bytes(path, buf.tobytes())
-    return path
-
-
 class _Tracker:
     """The causal state of one sequence: filters, type vote and, with joint angles, the poses."""
 
@@ -286,7 +277,7 @@ def iter_sequence(frames: Sequence[str | Path], checkpoint: Path | str, intrinsi
         mask = res.pop("_mask")
         row = {"image": name, **tracker.step(k, k / rate_hz, res)}
         if masks is not None:
-            row["mask"] = str(write_frame_mask(mask, masks, name))
+            row["mask"] = str(write_mask(mask, masks, frame_stem(name)))
         yield row, image, mask
 
 

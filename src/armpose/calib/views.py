@@ -94,15 +94,20 @@ def read_pose_csv(path: Path) -> dict[str, np.ndarray]:
     return poses
 
 
-def read_intrinsics(path: Path) -> tuple[Camera, np.ndarray | None]:
-    """The pinhole camera and optional distortion coefficients from ``cam.json`` (or a recording.json)."""
-    path = Path(path)
+def _read_json(path: Path):
+    """The parsed JSON of ``path``; :class:`CalibInputError` naming the file (and line) otherwise."""
     try:
-        raw = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except FileNotFoundError:
         raise CalibInputError(path, None, None, "missing file") from None
     except json.JSONDecodeError as err:
         raise CalibInputError(path, err.lineno, err.msg, "not valid JSON") from err
+
+
+def read_intrinsics(path: Path) -> tuple[Camera, np.ndarray | None]:
+    """The pinhole camera and optional distortion coefficients from ``cam.json`` (or a recording.json)."""
+    path = Path(path)
+    raw = _read_json(path)
     if isinstance(raw, dict) and isinstance(raw.get("camera"), dict):
         raw = raw["camera"]
     keys = ("width", "height", "fx", "fy", "cx", "cy")
@@ -126,12 +131,7 @@ def read_intrinsics(path: Path) -> tuple[Camera, np.ndarray | None]:
 def read_board(path: Path) -> BoardSpec:
     """The board description from ``board.json``."""
     path = Path(path)
-    try:
-        raw = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise CalibInputError(path, None, None, "missing file") from None
-    except json.JSONDecodeError as err:
-        raise CalibInputError(path, err.lineno, err.msg, "not valid JSON") from err
+    raw = _read_json(path)
     try:
         return BoardSpec.from_dict(raw)
     except ValueError as err:
