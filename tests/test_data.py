@@ -92,6 +92,18 @@ def test_augmentation_depends_only_on_seed_row_and_epoch(folder):
         LabelledFrames(folder, np.arange(3), augment={"rotate": 10})
 
 
+def test_geometric_augmentation_moves_image_mask_and_labels_together(folder):
+    geo = {**AUG, "flip": 1.0, "rotate_deg": 5.0, "roll_deg": 10.0}
+    plain, ds = LabelledFrames(folder, np.arange(20)), LabelledFrames(folder, np.arange(20), augment=geo, seed=3)
+    a, b = plain[5], ds[5]
+    assert not torch.equal(a["mask"], b["mask"])
+    assert torch.allclose(torch.linalg.vector_norm(a["joints"], dim=-1), torch.linalg.vector_norm(b["joints"], dim=-1),
+                          atol=1e-5), "a camera turn keeps every point's distance"
+    assert b["joints"][:, 0] @ a["joints"][:, 0] < 0, "flip 1.0 mirrors x (the principal point is centred)"
+    assert torch.equal(a["joint_valid"], b["joint_valid"]) and torch.equal(a["intrinsics"], b["intrinsics"])
+    assert torch.equal(b["joints"], ds[(5, 0)]["joints"]) and not torch.equal(b["joints"], ds[(5, 1)]["joints"])
+
+
 def test_pickled_dataset_carries_no_memory_maps(folder):
     ds = LabelledFrames(folder, np.arange(100))
     ds[0]
@@ -211,3 +223,12 @@ def test_distributed_sampler_with_one_process(folder, tmp_path):
         assert [b["index"].tolist() for b in plain] == [[0, 1, 2, 3, 4], [5, 6, 7, 8, 9]]
     finally:
         dist.destroy_process_group()
+
+
+def test_foreground_fraction_is_the_mean_mask_share(folder):
+    from armpose.data import foreground_fraction
+    arrays, _ = load_dataset(folder)
+    rows = np.arange(10)
+    expected = np.mean([arrays["masks"][r].mean() for r in rows])
+    assert foreground_fraction(arrays, rows) == pytest.approx(expected)
+    assert foreground_fraction(arrays, np.zeros(0, np.int64)) == 0.5

@@ -25,12 +25,14 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 from torch.utils.data.distributed import DistributedSampler
 
+from armpose.augment import GEOMETRIC_KEYS, draw_rotation, rotate_points, warp
 from armpose.labels.dataset import load_dataset
 
 log = logging.getLogger(__name__)
 
 SPLITS = {"train": 0, "test": 1}
-DEFAULT_AUGMENT = {"brightness": 0.25, "contrast": 0.25, "saturation": 0.25, "noise": 0.02}
+DEFAULT_AUGMENT = {"brightness": 0.25, "contrast": 0.25, "saturation": 0.25, "noise": 0.02,
+                   "flip": 0.0, "rotate_deg": 0.0, "roll_deg": 0.0}
 _GRAY = np.array([0.299, 0.587, 0.114], np.float32)
 
 
@@ -45,8 +47,10 @@ class LabelledFrames(Dataset):
 
     ``augment`` (``None``: off) jitters brightness, contrast and saturation by a factor drawn
     from [1 - x, 1 + x] for each key ``x`` given, then adds Gaussian noise of a standard
-    deviation drawn from [0, ``noise``]; photometric only, since moving pixels would invalidate
-    the 3D labels. The draws come from a generator seeded by (``seed``, row, epoch).
+    deviation drawn from [0, ``noise``]. ``flip``, ``rotate_deg`` and ``roll_deg`` add a virtual
+    turn of the camera (:mod:`armpose.augment`), which warps image and mask and rotates joints
+    and base so the labels stay exact. The draws come from a generator seeded by (``seed``,
+    row, epoch); the geometric ones from a second stream, so the photometric draws do not change.
 
     The memory-mapped arrays are opened on first use in each process and never pickled, so
     the dataset is safe in ``DataLoader`` workers started by fork or spawn.
@@ -95,19 +99,30 @@ class LabelledFrames(Dataset):
         row = int(self.indices[i])
         a = self.arrays
         image = np.asarray(a["images"][row])
+        mask = np.asarray(a["masks"][row]) > 0
+        joints = np.array(a["joints"][row], np.float32)
+        base = np.array(a["base"][row], np.float32)
+        intrinsics = np.array(a["intrinsics"][row], np.float32)
+        M = (draw_rotation(np.random.default_rng([self.seed, row, epoch, 1]), self.augment, intrinsics, image.shape[1])
+             if self.augment and any(self.augment.get(k) for k in GEOMETRIC_KEYS) else None)
+        if M is not None:
+            image, mask = warp(image, mask.astype(np.uint8), M, intrinsics)
+            mask = mask > 0
+            joints = rotate_points(joints, M).astype(np.float32)
+            base = rotate_points(base, M).astype(np.float32)
         if self.augment:
             img = self._augmented(image, row, int(epoch))
         else:
             img = torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float().div_(255)
         return {
             "image": img,
-            "mask": torch.from_numpy(np.asarray(a["masks"][row]) > 0).float(),
-            "joints": torch.from_numpy(np.array(a["joints"][row], np.float32)),
+            "mask": torch.from_numpy(mask).float(),
+            "joints": torch.from_numpy(joints),
             "joint_valid": torch.from_numpy(np.array(a["joint_valid"][row], bool)),
-            "base": torch.from_numpy(np.array(a["base"][row], np.float32)),
+            "base": torch.from_numpy(base),
             "robot": torch.tensor(int(a["robot"][row]), dtype=torch.int64),
             "distance": torch.tensor(float(a["distance"][row]), dtype=torch.float32),
-            "intrinsics": torch.from_numpy(np.array(a["intrinsics"][row], np.float32)),
+            "intrinsics": torch.from_numpy(intrinsics),
             "image_size": torch.tensor([image.shape[1], image.shape[0]], dtype=torch.int64),
             "index": torch.tensor(row, dtype=torch.int64),
         }
@@ -222,6 +237,17 @@ def _per_type(arrays, split: str, robots: Sequence[int] | None, count: int | Non
             rng = np.random.default_rng([int(seed), int(r)])
             chosen.append(rng.choice(rows, size=count, replace=False))
     return np.sort(np.concatenate(chosen)).astype(np.int64) if chosen else np.zeros(0, np.int64)
+
+
+def foreground_fraction(arrays, rows: np.ndarray, max_rows: int = 1000) -> float:
+    """Mean fraction of robot pixels in the masks of ``rows`` (at most ``max_rows`` of them,
+    evenly spaced, so the answer is deterministic and cheap); 0.5 for no rows."""
+    rows = np.asarray(rows, np.int64)
+    if not len(rows):
+        return 0.5
+    pick = rows[np.linspace(0, len(rows) - 1, min(len(rows), max_rows)).round().astype(np.int64)]
+    masks = _arrays_of(arrays)["masks"]
+    return float(np.mean([np.count_nonzero(masks[r]) / masks[r].size for r in pick]))
 
 
 def transfer_set(arrays, split: str = "train", robots: Sequence[int] | None = None,

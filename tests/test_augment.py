@@ -1,0 +1,64 @@
+"""armpose.augment: a virtual camera turn warps pixels exactly where the rotated 3D labels project."""
+import numpy as np
+import pytest
+
+from armpose.augment import centred, draw_rotation, rotate_points, warp
+
+W, H = 256, 212
+K = (309.2, 309.2, (W - 1) / 2, (H - 1) / 2)
+CFG = {"flip": 0.5, "rotate_deg": 6.0, "roll_deg": 10.0}
+
+
+def project(points, k=K):
+    fx, fy, cx, cy = k
+    return np.stack([fx * points[:, 0] / points[:, 2] + cx, fy * points[:, 1] / points[:, 2] + cy], 1)
+
+
+def blob_image(uv):
+    """An image with one bright 5x5 square per point (integer pixel centres) and its mask."""
+    img = np.zeros((H, W, 3), np.uint8)
+    for u, v in np.round(uv).astype(int):
+        img[v - 2:v + 3, u - 2:u + 3] = 255
+    return img, (img[..., 0] > 0).astype(np.uint8)
+
+
+def centroid_near(img, uv, r=6):
+    """Intensity centroid of ``img`` around ``uv`` (pixels)."""
+    u0, v0 = np.round(uv).astype(int)
+    patch = img[v0 - r:v0 + r + 1, u0 - r:u0 + r + 1, 0].astype(float)
+    vv, uu = np.mgrid[v0 - r:v0 + r + 1, u0 - r:u0 + r + 1]
+    return np.array([(patch * uu).sum(), (patch * vv).sum()]) / patch.sum()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_warped_blobs_sit_where_the_rotated_points_project(seed):
+    rng = np.random.default_rng(seed)
+    grid = np.array([[u, v] for u in (70, 128, 186) for v in (70, 140)], float)   # blobs far apart
+    uv = (grid + rng.uniform(-10, 10, grid.shape)).round()
+    z = rng.uniform(1.0, 3.5, 6)
+    points = np.column_stack([(uv[:, 0] - K[2]) / K[0] * z, (uv[:, 1] - K[3]) / K[1] * z, z])
+    img, mask = blob_image(project(points))
+    M = draw_rotation(rng, {"flip": 1.0 if seed % 2 else 0.0, "rotate_deg": 6.0, "roll_deg": 10.0}, K, W)
+    assert np.allclose(M @ M.T, np.eye(3)) and np.isclose(abs(np.linalg.det(M)), 1.0)
+    assert np.linalg.det(M) < 0 if seed % 2 else np.linalg.det(M) > 0, "the mirror is drawn with probability flip"
+    out, out_mask = warp(img, mask, M, K)
+    moved = project(rotate_points(points, M))
+    for p in moved:
+        assert np.linalg.norm(centroid_near(out, p) - p) < 0.5
+        assert out_mask[int(round(p[1])), int(round(p[0]))] == 1
+
+
+def test_no_geometric_keys_means_no_warp_and_off_centre_principal_point_never_mirrors():
+    rng = np.random.default_rng(0)
+    assert draw_rotation(rng, {"brightness": 0.2}, K, W) is None
+    off = (K[0], K[1], K[2] + 7.0, K[3])
+    assert not centred(off, W) and centred(K, W)
+    dets = [np.linalg.det(draw_rotation(rng, {"flip": 1.0, "rotate_deg": 3.0}, off, W)) for _ in range(10)]
+    assert all(d > 0 for d in dets)
+
+
+def test_draws_are_reproducible_from_the_generator_seed():
+    a = draw_rotation(np.random.default_rng([1, 2, 3]), CFG, K, W)
+    b = draw_rotation(np.random.default_rng([1, 2, 3]), CFG, K, W)
+    c = draw_rotation(np.random.default_rng([1, 2, 4]), CFG, K, W)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
