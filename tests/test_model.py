@@ -1,10 +1,12 @@
 """The multi-objective CNN: output contract, layer groups and freezing for transfer learning."""
+import math
+
 import pytest
 import torch
 from torch import nn
 
 from armpose.losses import multi_objective_loss
-from armpose.model import (GROUPS, ArmPoseNet, build_model, count_parameters, group_modules,
+from armpose.model import (GROUPS, ArmPoseNet, build_model, count_parameters, group_modules, predicted_mask,
                            group_parameters, set_trainable)
 
 H, W = 48, 64  # small images keep the tests fast; the model works at any size
@@ -139,3 +141,15 @@ def test_frozen_batchnorm_stays_in_eval_mode_after_train():
     assert all(m.training for m in model.modules())
     model.eval()
     assert not any(m.training for m in model.modules())
+
+
+def test_mask_decision_uses_the_training_prior_threshold():
+    model = build_model({"width": 4})
+    logits = torch.tensor([-1.0, 0.5, 2.0, 3.5])
+    assert predicted_mask(model, logits).tolist() == [False, True, True, True], "threshold 0 before any prior"
+    model.set_mask_prior(0.05)          # log(0.95 / 0.05) = 2.944
+    assert torch.isclose(model.mask_threshold, torch.tensor(math.log(19.0)))
+    assert predicted_mask(model, logits).tolist() == [False, False, False, True]
+    restored = build_model({"width": 4})
+    restored.load_state_dict(model.state_dict())
+    assert torch.equal(restored.mask_threshold, model.mask_threshold), "the threshold travels in the checkpoint"

@@ -18,7 +18,7 @@ from tqdm import tqdm
 from armpose.data import LabelledFrames, split_indices
 from armpose.labels.dataset import SOURCE_CODES, load_dataset
 from armpose.metrics import confusion_matrix, mask_counts, summarise
-from armpose.model import build_model
+from armpose.model import build_model, predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint, to_channels_last
 
@@ -51,7 +51,7 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
         joints.append(out["joints"].float().cpu().numpy())
         base.append(out["base"].float().cpu().numpy())
         probs.append(out["type_logits"].float().softmax(-1).cpu().numpy())
-        pred_mask = (out["mask_logits"][:, 0] > 0).cpu().numpy()
+        pred_mask = predicted_mask(model, out["mask_logits"][:, 0]).cpu().numpy()
         counts.append(mask_counts(pred_mask, torch.stack([it["mask"] for it in items]).numpy() > 0.5))
     cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
     type_probs = cat(probs, (0, 0))

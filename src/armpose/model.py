@@ -3,7 +3,8 @@
 Input: ``(B, 3, H, W)`` float RGB in [0, 1]; the pipeline uses H=212, W=256 but any size works.
 Output, a dict:
 
-- ``"mask_logits"`` ``(B, 1, H, W)``: sigmoid gives P(robot) per pixel;
+- ``"mask_logits"`` ``(B, 1, H, W)``: per-pixel robot logits; :func:`predicted_mask`
+  turns them into the mask (see "Mask decision" below);
 - ``"joints"`` ``(B, max_joints, 3)``: joint positions in metres, camera optical frame
   (x right, y down, z forward); a robot with fewer joints uses the first slots;
 - ``"base"`` ``(B, 3)``: robot base position, same frame;
@@ -40,6 +41,14 @@ network input (scale-and-crop of a 480x360, fx=525 camera to 256x212). The last 
 layer starts at zero, so an untrained head predicts points on the ray through its
 attention centre at 2.5 m. Only 3D labels are needed; the maps learn where to look from
 the 3D loss (integral / soft-argmax regression).
+
+Mask decision. The mask loss (paper eq. 1-3) weights each class by its inverse frequency, so
+the trained logit estimates ``log(P(fg)/P(bg)) + log(w_fg/w_bg)``: thresholding it at 0 calls
+a pixel robot whenever P(robot) is above the robot's share of the image (about 5 %), which
+costs pixel accuracy. :func:`predicted_mask` thresholds at the buffer
+``mask_threshold`` instead, ``log((1 - pi) / pi)`` with ``pi`` the mean foreground fraction of
+the training frames (set by :func:`armpose.train.train` whenever the mask decoder trains):
+the Bayes decision for pixel accuracy. The loss is untouched.
 
 Trainable groups, for two-stage transfer learning (``params.yaml`` names them):
 ``GROUPS = ("trunk.early", "trunk.late", "mask_decoder", "heads")``; a dotted sub-path of a
@@ -279,6 +288,7 @@ class ArmPoseNet(nn.Module):
         self.trunk = Trunk(width)
         self.mask_decoder = MaskDecoder(width)
         self.heads = Heads(width, num_types, max_joints, half_fov_tan, depth)
+        self.register_buffer("mask_threshold", torch.zeros(()))
 
     def forward(self, image: torch.Tensor | None = None, *,
                 features: list[torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
@@ -292,6 +302,11 @@ class ArmPoseNet(nn.Module):
         out["mask_logits"] = self.mask_decoder(feats, image.shape[-2:])
         return out
 
+    def set_mask_prior(self, foreground_fraction: float) -> None:
+        """Set ``mask_threshold`` to ``log((1 - pi) / pi)`` for training-set foreground share ``pi``."""
+        pi = min(max(float(foreground_fraction), 1e-4), 1 - 1e-4)
+        self.mask_threshold.fill_(math.log((1 - pi) / pi))
+
     @torch.no_grad()
     def trunk_features(self, image: torch.Tensor) -> list[torch.Tensor]:
         """``[c2, c3, c4]`` of the trunk for ``image``, without gradients: what the heads read."""
@@ -301,6 +316,13 @@ class ArmPoseNet(nn.Module):
         super().train(mode)
         apply_freeze_mode(self)
         return self
+
+
+def predicted_mask(model: nn.Module, mask_logits: torch.Tensor) -> torch.Tensor:
+    """Boolean robot mask from ``mask_logits`` by ``model``'s decision threshold (its
+    ``mask_threshold`` buffer; 0 for a module without one, e.g. a test oracle)."""
+    threshold = getattr(model, "mask_threshold", None)
+    return mask_logits > (0.0 if threshold is None else threshold.to(mask_logits.dtype))
 
 
 def normalise(image: torch.Tensor) -> torch.Tensor:

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from armpose.geometry import Camera
+from armpose.model import predicted_mask
 from armpose.io import atomic_write_bytes
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint
@@ -147,7 +148,7 @@ class Predictor:
         joints = out["joints"][0, : self.num_joints[k]].double().cpu().numpy()
         base = out["base"][0].double().cpu().numpy()
         uv = camera.project(joints)
-        mask = mask_to_source(out["mask_logits"][0, 0].cpu().numpy() > 0, warp, camera)
+        mask = mask_to_source(predicted_mask(self.model, out["mask_logits"][0, 0]).cpu().numpy(), warp, camera)
         return {"robot_type": self.types[k], "type_probs": {t: float(p) for t, p in zip(self.types, probs)},
                 "base_xyz": base.tolist(), "joints_xyz": joints.tolist(), "joints_uv": uv.tolist(),
                 "latency_ms": round(latency, 3), "_mask": mask}

@@ -25,11 +25,12 @@ import torch.distributed as dist
 from tqdm import tqdm
 
 from armpose.features import CachedFeatureFrames, cache_trunk_features, trunk_is_frozen
-from armpose.data import InfiniteBatches, LabelledFrames, make_loader, transfer_set, validation_subset
+from armpose.data import (InfiniteBatches, LabelledFrames, foreground_fraction, make_loader, transfer_set,
+                          validation_subset)
 from armpose.io import atomic_write_bytes
 from armpose.labels.dataset import load_dataset
 from armpose.losses import multi_objective_loss
-from armpose.model import build_model, set_trainable
+from armpose.model import build_model, predicted_mask, set_trainable
 
 log = logging.getLogger(__name__)
 HISTORY_FIELDS = ["step", "stage", "wall_s", "lr", "total", "mask", "joints", "base", "type", "reproj", "heatmap",
@@ -148,7 +149,7 @@ def validate(model, loader, weights: dict, device) -> dict:
         joint_err.append(err[batch["joint_valid"]].cpu())
         base_err.append(torch.linalg.norm(out["base"] - batch["base"], dim=-1).cpu())
         type_ok.append((out["type_logits"].argmax(1) == batch["robot"]).cpu())
-        pred = out["mask_logits"][:, 0] > 0
+        pred = predicted_mask(unwrap(model), out["mask_logits"][:, 0])
         mask_acc.append((pred == (batch["mask"] > 0.5)).float().mean(dim=(1, 2)).cpu())
     if n == 0:
         return {}
@@ -213,6 +214,8 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         model.load_state_dict(load_checkpoint(Path(cfg["init_from"]))["model"])
         log.info("%s: initialised from %s", stage, cfg["init_from"])
     set_trainable(model, cfg["trainable"])
+    if any(g == "mask_decoder" or g.startswith("mask_decoder.") for g in cfg["trainable"]):
+        model.set_mask_prior(foreground_fraction(arrays, rows))   # the decision rule of this training set
     cached = bool(cfg.get("feature_cache", True)) and trunk_is_frozen(cfg["trainable"])
     cache_s = time.perf_counter()
     if cached:  # the trunk never changes in this run: compute its features once
