@@ -40,11 +40,21 @@
 # | calibration | a simulated ChArUco session with that rig, solved by `armpose.calib.rig.calibrate_rig` (the `armpose calibrate-rig` solver) | the rig calibration |
 # | mocap | the rig's true pose plus noise every frame (0.5 mm, 0.1 deg RMS), the robot base measured once with the same noise | OptiTrack |
 #
+# Two kinds of session: **handheld** (`record.sessions_per_robot`, named `<robot>_sNN`), as in the
+# paper, and **tripod** (`record.tripod_sessions_per_robot`, `<robot>_tNN`): the camera stands still
+# on a tripod while the robot moves, the calibration-free use case this project adds: one static
+# camera whose pose to the robot should follow from the images alone (and improves when pooled over
+# many frames, notebook 06). A tripod session has the same scene, robot motion, rig and calibration;
+# its camera pose is drawn once (distance, elevation, azimuth as above; no walk, drift or shake) and
+# the mocap measures the rig once, so the written pose is static too, with one constant error.
+#
 # Frames are rendered at the **true** camera pose; the recording stores
 # `T_base_cam = inv(T_world_base_measured) @ T_world_rig_measured @ T_rig_cam_estimated`.
 # Each session has its own rig mounting and calibration, so calibration errors differ between
 # recordings. The stage `labels` then treats these recordings exactly like real ones (split per
-# recording, not per frame).
+# recording, not per frame): every static-camera recording is test data, and of each robot type's
+# moving-camera recordings `ceil(labels.test_fraction x n)` are (a seeded draw), so every robot type
+# has recorded test recordings.
 
 # %% tags=["parameters"]
 profile = "default"
@@ -62,7 +72,7 @@ from pathlib import Path
 
 from armpose import viz, viz_record
 from armpose.config import load_params, profile_params, project_root
-from armpose.recording import find_recordings
+from armpose.recording import find_recordings, static_camera
 from armpose.stages import record
 
 logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", force=True)
@@ -79,7 +89,8 @@ print(f"profile {profile or 'params.yaml'!r}; data under {root / 'data'}")
 
 # %%
 print("recordings_dir:", cfg["recordings_dir"], "(null: simulate)")
-print("sessions per robot:", cfg["sessions_per_robot"])
+print("handheld sessions per robot:", cfg["sessions_per_robot"])
+print("tripod sessions per robot:", cfg.get("tripod_sessions_per_robot", {}))
 print(f"frames per session: {cfg['frames_per_session']} at {cfg['fps']} Hz "
       f"= {cfg['frames_per_session'] / cfg['fps']:.1f} s")
 print("camera:", cfg["camera"])
@@ -119,7 +130,7 @@ viz_record.calibration_residuals_figure(first)
 # the truth (the calibration's own tests require 2 mm and 0.2 deg):
 
 # %%
-print(viz.format_table([{"session": s["name"], "frames": s["frames"],
+print(viz.format_table([{"session": s["name"], "kind": s["kind"], "frames": s["frames"],
                          "error_mm": s["rig_offset_error"]["translation_mm"],
                          "error_deg": s["rig_offset_error"]["rotation_deg"],
                          "rms_px": s["calibration"]["rms_reprojection_px"],
@@ -136,6 +147,25 @@ viz_record.calibration_errors_figure(summary)
 
 # %%
 viz.camera_poses_figure(first)
+
+# %% [markdown]
+# ## A tripod session
+#
+# The same plot for a tripod session: one camera pose for every frame (the path is a single point),
+# while the robot moves through its joint range. `armpose.recording.static_camera` recognises such a
+# recording from its camera poses alone, so real tripod recordings linked in are treated alike.
+
+# %%
+tripods = [r for r in sessions if static_camera(r)]
+print("static-camera recordings:", [str(r.relative_to(record_dir)) for r in tripods])
+tripod = tripods[0] if tripods else first   # a profile without tripod sessions shows the handheld one again
+viz.camera_poses_figure(tripod)
+
+# %% [markdown]
+# Its labels on evenly spaced frames: the background and the camera stay put, the robot moves.
+
+# %%
+viz_record.label_overlays_figure(tripod, params["base"]["input_size"], params["base"]["max_joints"])
 
 # %% [markdown]
 # ## What the labels inherit

@@ -27,8 +27,9 @@
 #
 # **What differs from the paper, plainly.** The paper measured on real camera images of real
 # robots. Every number here is measured on *held-out synthetic renders* (PyBullet, domain
-# randomised; 20 % of the frames, never trained on) unless recorded data has been added to
-# `labels.recordings`. The default profile trains for minutes on a 2-core CPU, not for 10 hours
+# randomised; 20 % of the frames, never trained on) and on *held-out recorded recordings* of the
+# `record` stage (whole sessions, reported apart; in the default profile these are simulated
+# mocap-tracked handheld and tripod sessions, not real hardware). The default profile trains for minutes on a 2-core CPU, not for 10 hours
 # on a GTX 1080 Ti, with a network sized for that budget. Synthetic test frames are easier in one
 # way (perfect labels, no sensor artefacts beyond the simulated ones) and harder in another (random
 # textures, lighting and distractors the real lab never had).
@@ -49,7 +50,7 @@ from pathlib import Path
 
 from IPython.display import Image, Markdown, display
 
-from armpose import viz
+from armpose import report, viz
 from armpose.config import load_params, profile_params, project_root
 from armpose.stages import evaluate, latency, sweep, train_full
 from armpose.viz_train import format_summary
@@ -107,6 +108,42 @@ print(viz.format_table([{"type": t, **{k: v for k, v in m.items() if k != "per_j
 conf = metrics["transfer"]["test"]["confusion"]
 print("\n".join([" " * 7 + " ".join(f"{t:>6}" for t in conf["labels"])]
                 + [f"{t:>6} " + " ".join(f"{n:>6}" for n in row) for t, row in zip(conf["labels"], conf["matrix"])]))
+
+# %% [markdown]
+# ## Synthetic test frames and recorded test recordings, apart
+#
+# `by_source` in `metrics.json`: the synthetic test frames and the recorded test recordings per
+# family (two-stage transfer). Recorded labels carry the rig calibration and mocap errors; the
+# recordings are whole sessions the network never saw.
+
+# %%
+test = metrics["transfer"]["test"]
+display(Markdown("\n".join(report.source_section(test["by_source"]))))
+
+# %% [markdown]
+# ## Camera-to-robot pose: one image against ten of a static camera
+#
+# The predicted base and joints aligned with forward kinematics (robust rigid fit) give the pose of
+# the robot base in the camera frame with no calibration (`armpose.pose_eval`). On the synthetic
+# test set every frame has its own camera, so each estimate uses one image. On the tripod test
+# recordings the camera is static: one pose pooled over `evaluate.pose_pool_images` frames spread
+# over the recording (`armpose.camera_pose.pool_poses`) against single images of the same frames.
+
+# %%
+display(Markdown("\n".join(report.camera_pose_section(test["camera_pose"]))))
+print(json.dumps(test["camera_pose"].get("tripod", {}).get("all", {}), indent=1))
+
+# %% [markdown]
+# ## Recorded test recordings as sequences: unfiltered against filtered
+#
+# Each recorded test recording is a video at `record.fps`. The causal filters of
+# `armpose predict --sequence` (`evaluate.sequence_filters`, default tuning) smooth the per-frame
+# joints; jitter is the mean second difference over time (mm per frame^2; `armpose.tracking.jitter`),
+# and the labels' own jitter is what true motion leaves (on moving-camera recordings it includes the
+# labels' per-frame mocap noise; `armpose.sequence_eval`).
+
+# %%
+display(Markdown("\n".join(report.sequence_section(test["sequence"]))))
 
 # %% [markdown]
 # ## (a) Loss and time against transfer-set size (Fig. 6a)
@@ -172,5 +209,5 @@ if (results / "figures" / "f_latency.png").exists():
 #   from apparent size, and UR3, UR5 and UR10 look alike up to scale. Small robots in the image
 #   (2-5 % of the pixels, against the paper's 5-22 %) and minutes of CPU training make it worse.
 # - **Synthetic against real:** perfect labels, but also random textures and distractor robots the
-#   paper's test set did not have. Real recordings can be added (`armpose import`, `labels.recordings`)
-#   and are then reported separately under `by_source` in `results/metrics.json`.
+#   paper's test set did not have. Real recordings can replace the simulated sessions
+#   (`record.recordings_dir`) and are then reported separately under `by_source` in `results/metrics.json`.

@@ -1,4 +1,5 @@
-"""End to end: ``dvc repro`` on tiny params in a temporary copy of the project."""
+"""End to end: ``dvc repro`` on tiny params in a temporary copy of the project, the record stage included."""
+import json
 import shutil
 import subprocess
 from pathlib import Path
@@ -23,12 +24,25 @@ def test_dvc_repro_runs_every_stage_and_then_does_nothing(tmp_path, tiny_params)
         src = REPO / item
         (shutil.copytree if src.is_dir() else shutil.copy)(src, work / item)
     params = tiny_params(frames=4, workers=2)
+    params["record"].update(frames_per_session=4, sessions_per_robot={"panda": 1},
+                            tripod_sessions_per_robot={"panda": 1})
     write_params(params, work / "params.yaml")
     _sh("git init -q && git config user.email t@t && git config user.name t && dvc init -q "
         "&& dvc config core.analytics false && dvc config core.check_update false", work)
     _sh("dvc repro", work)
     arrays, index = load_dataset(work / "data" / "labels")
-    assert index["num_frames"] == 20 and arrays["images"].shape[0] == 20
+    assert index["num_frames"] == 28 and arrays["images"].shape[0] == 28        # 20 rendered, 8 recorded
+    recorded = {r["name"]: r for r in index["recordings"] if r["source"] == "recorded"}
+    assert set(recorded) == {"data/record/panda/panda_s00", "data/record/panda/panda_t00"}
+    assert recorded["data/record/panda/panda_t00"]["static_camera"]
+    assert (arrays["split"][arrays["source"] == 1] == 1).all()                 # one handheld: ceil(0.2) = 1 is test
+    test = json.loads((work / "results" / "metrics.json").read_text())["transfer"]["test"]
+    assert test["by_source"]["recorded"]["all"]["frames"] == 8
+    assert test["camera_pose"]["tripod"]["all"]["images_10"]["estimates"] == 1   # 4 frames: one pooled estimate
+    assert test["camera_pose"]["tripod"]["all"]["images_1"]["frames"] == 4
+    assert test["sequence"]["all"]["recordings"] == 2 and "jitter_reduction" in test["sequence"]["all"]["kalman"]
+    table = (work / "results" / "results_table.md").read_text()
+    assert "| recorded | Panda | 8 |" in table and "Jitter reduction" in table and "| tripod | 10 |" in table
     before = {p.name: p.read_bytes() for p in (work / "data" / "labels").glob("*.npy")}
     out = _sh("dvc repro labels", work)
     assert "didn't change" in out or "up to date" in out, out

@@ -1,5 +1,5 @@
-"""Stage ``record``: simulated handheld-camera sessions with a mocap rig (deterministic, resumable,
-realistic calibration error that the labels carry), and real recordings validated and linked."""
+"""Stage ``record``: simulated handheld- and tripod-camera sessions with a mocap rig (deterministic,
+resumable, realistic calibration error that the labels carry), and real recordings validated and linked."""
 from __future__ import annotations
 
 import copy
@@ -22,10 +22,11 @@ from armpose.recording import (
     read_joints,
     read_meta,
     read_poses,
+    static_camera,
 )
 from armpose.robots import get_robot
 from armpose.sim.body import RobotBody
-from armpose.sessions.motion import camera_orbit, in_view, robot_motion
+from armpose.sessions.motion import camera_orbit, in_view, robot_motion, tripod_camera
 from armpose.sessions.session import read_true_poses, session_errors
 from armpose.stages import record
 
@@ -245,3 +246,54 @@ def test_robot_motion_is_smooth_within_limits_and_collision_free():
             assert not body.in_collision([floor])
     finally:
         pb.disconnect(client)
+
+
+@pytest.fixture(scope="module")
+def tripod(tmp_path_factory):
+    """One tiny tripod session (no handheld ones)."""
+    root = tmp_path_factory.mktemp("tripod")
+    res = record.run(_params(sessions_per_robot={}, tripod_sessions_per_robot={"iiwa": 1}), root)
+    (rec,) = res["recordings"]
+    return rec
+
+
+def test_tripod_session_has_a_static_camera_and_a_moving_robot(tripod, session):
+    assert tripod.name == "iiwa_t00" and tripod.parent.name == "iiwa"
+    raw = json.loads((tripod / "recording.json").read_text())
+    assert raw["session"]["kind"] == "tripod" and raw["source"] == "recorded" and "tripod" in raw["notes"]
+    true = read_true_poses(tripod)
+    assert len(true) == FRAMES and np.abs(true - true[0]).max() == 0.0          # the camera never moves
+    _, poses, _ = read_poses(tripod)
+    assert np.abs(poses - poses[0]).max() == 0.0                                 # measured once: static as written
+    err = session_errors(tripod)
+    assert 0.05 < err["camera_translation_mm"][0] < 15.0                          # one constant calibration error
+    assert np.ptp(err["camera_translation_mm"]) < 1e-9
+    _, q, _ = read_joints(tripod, get_robot("iiwa"))
+    assert np.abs(q[-1] - q[0]).max() > 0.0                                      # while the robot moves
+    assert static_camera(tripod) and not static_camera(session)
+    summary = json.loads((tripod.parents[1] / "summary.json").read_text())
+    assert summary["sessions"][0]["kind"] == "tripod"
+
+
+def test_plan_names_and_seeds_handheld_and_tripod_sessions_apart(tmp_path):
+    params = _params(sessions_per_robot={"iiwa": 2}, tripod_sessions_per_robot={"iiwa": 1, "panda": 1})
+    jobs = record.plan(params, tmp_path)
+    assert [(j.out_dir.name, j.kind) for j in jobs] == [("iiwa_s00", "handheld"), ("iiwa_s01", "handheld"),
+                                                        ("iiwa_t00", "tripod"), ("panda_t00", "tripod")]
+    assert len({j.seed for j in jobs}) == len(jobs) and len({j.signature() for j in jobs}) == len(jobs)
+    with pytest.raises(ValueError, match="tripod_sessions_per_robot names \\['r2d2'\\]"):
+        record.plan(_params(tripod_sessions_per_robot={"r2d2": 1}), tmp_path)
+
+
+def test_tripod_camera_is_static_and_keeps_the_robot_in_view():
+    camera = Camera.from_dict(profile_params("quick")["base"]["camera"])
+    n, fps = 60, 30.0
+    t = np.arange(n)[:, None] / fps
+    points = np.stack([np.zeros((n, 3)), np.hstack([0.3 * np.cos(t), 0.3 * np.sin(t), 0.5 + 0 * t]),
+                       np.hstack([0.5 * np.cos(t), 0.5 * np.sin(t), 0.8 + 0.1 * t])], axis=1)
+    for seed in range(5):
+        T, frac = tripod_camera(points, camera, RECORD["camera"], np.random.default_rng(seed))
+        assert T.shape == (n, 4, 4) and np.abs(T - T[0]).max() == 0.0
+        assert frac >= RECORD["camera"]["min_in_view"] and in_view(points, T, camera).mean() == frac
+        dist = np.linalg.norm(T[0, :3, 3] - points.reshape(-1, 3).mean(axis=0))
+        assert 1.2 - 1e-9 <= dist <= 3.0 + 1e-9 and T[0, 2, 3] <= 2.0

@@ -198,3 +198,20 @@ def find_recordings(folder: Path) -> list[Path]:
     if not folder.exists():
         return []
     return sorted(p.parent for p in folder.rglob("recording.json") if not p.parent.name.startswith("."))
+
+
+def static_camera(rec_dir: Path, tol_m: float = 0.005, tol_deg: float = 0.5) -> bool:
+    """True if every valid camera pose of ``camera_poses.csv`` lies within ``tol_m`` metres and
+    ``tol_deg`` degrees of the first one (a camera on a tripod), for at least two frames.
+
+    The rule needs no metadata, so real recordings linked in are classified the same way as
+    simulated tripod sessions (whose written pose is exactly static).
+    """
+    _, poses, _ = read_poses(rec_dir)
+    poses = poses[np.isfinite(poses).all(axis=1)]
+    if len(poses) < 2:
+        return False
+    shift = np.linalg.norm(poses[:, :3] - poses[0, :3], axis=1).max()
+    dots = np.clip(np.abs(poses[:, 3:] @ poses[0, 3:]) / np.linalg.norm(poses[:, 3:], axis=1), 0.0, 1.0)
+    turn = np.degrees(2 * np.arccos(dots)).max()
+    return bool(shift <= tol_m and turn <= tol_deg)

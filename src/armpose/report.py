@@ -69,24 +69,9 @@ def results_table(metrics: Mapping, data_note: str) -> str:
         fv = full.get(f, {})
         vals += [f"{fv.get('joint_median_cm', float('nan')):.2f}", f"{100 * fv.get('type_accuracy', float('nan')):.1f}"]
         out.append(f"| {f} | " + " | ".join(vals) + " |")
-    pose = metrics["transfer"]["test"].get("camera_pose", {}).get("by_family", {})
-    if pose:
-        out += ["", "## Camera-to-robot pose from one image (beyond the paper)", "",
-                "The predicted base and joints aligned with forward kinematics of the joint encoders "
-                "(robust rigid fit): the Eye-to-Hand transform without a calibration.", "",
-                "| Family | frames | rotation median deg | translation median cm | ADD median cm | ADD AUC 10 cm |",
-                "|---|---:|---:|---:|---:|---:|"]
-        for f, m in pose.items():
-            if m.get("frames"):
-                out.append(f"| {f} | {m['frames']} | {m['rotation_median_deg']:.2f} | {m['translation_median_cm']:.2f} | "
-                           f"{m['add_median_cm']:.2f} | {m['add_auc_10cm']:.3f} |")
-    recorded = metrics["transfer"]["test"].get("by_source", {}).get("recorded")
-    if recorded:
-        out += ["", "## Recorded test recordings (the real-world path), two-stage transfer", "",
-                "| Family | frames | mask acc % | type acc % | joint median cm | base median cm |", "|---|---:|---:|---:|---:|---:|"]
-        for f, m in recorded["by_family"].items():
-            out.append(f"| {f} | {m['frames']} | {100 * m['mask_accuracy']:.1f} | {100 * m['type_accuracy']:.1f} | "
-                       f"{m['joint_median_cm']:.2f} | {m['base_median_cm']:.2f} |")
+    out += source_section(metrics["transfer"]["test"].get("by_source", {}))
+    out += camera_pose_section(metrics["transfer"]["test"].get("camera_pose", {}))
+    out += sequence_section(metrics["transfer"]["test"].get("sequence", {}))
     lat = metrics.get("latency", {})
     if "cpu" in lat:
         c = lat["cpu"]
@@ -107,6 +92,77 @@ def results_table(metrics: Mapping, data_note: str) -> str:
     out += ["", "## Still short of the paper", ""]
     out += [f"- {s}" for s in short] or ["- nothing in the table above."]
     return "\n".join(out) + "\n"
+
+
+def source_section(by_source: Mapping) -> list[str]:
+    """Markdown lines: the synthetic test set and the recorded test recordings, per family, apart."""
+    if "recorded" not in by_source:
+        return []
+    out = ["", "## Synthetic test set and recorded test recordings, apart (two-stage transfer)", "",
+           "Recorded: whole held-out recordings of the record stage (simulated mocap-tracked handheld and "
+           "tripod sessions; their labels carry calibration and mocap error).", "",
+           "| Data | Family | frames | mask acc % | type acc % | joint median cm | base median cm |",
+           "|---|---|---:|---:|---:|---:|---:|"]
+    for source, block in by_source.items():
+        for f, m in {**block["by_family"], "all": block["all"]}.items():
+            if m.get("frames"):
+                out.append(f"| {source} | {f} | {m['frames']} | {100 * m['mask_accuracy']:.1f} | "
+                           f"{100 * m['type_accuracy']:.1f} | {m['joint_median_cm']:.2f} | {m['base_median_cm']:.2f} |")
+    return out
+
+
+def _pose_cells(m: Mapping) -> str:
+    count = m.get("frames", m.get("estimates", 0))
+    if not count:
+        return "| 0 | n/a | n/a | n/a | n/a |"
+    return (f"| {count} | {m['rotation_median_deg']:.2f} | {m['translation_median_cm']:.2f} | "
+            f"{m['add_median_cm']:.2f} | {m['add_auc_10cm']:.3f} |")
+
+
+def camera_pose_section(pose: Mapping) -> list[str]:
+    """Markdown lines: camera-to-robot pose per family, one image (synthetic, tripod) and pooled (tripod)."""
+    if not pose.get("by_family") and not pose.get("tripod"):
+        return []
+    out = ["", "## Camera-to-robot pose without calibration (beyond the paper)", "",
+           "The predicted base and joints aligned with forward kinematics of the joint encoders "
+           "(robust rigid fit): the Eye-to-Hand transform without a calibration. Synthetic: every test frame "
+           "has its own camera, so one image per estimate. Tripod: the static-camera test recordings, one image "
+           "per estimate, and one estimate pooled over N frames spread over the recording.", "",
+           "| Family | data | images | estimates | rotation median deg | translation median cm | ADD median cm "
+           "| ADD AUC 10 cm |", "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for f, m in pose.get("by_family", {}).items():
+        out.append(f"| {f} | synthetic | 1 {_pose_cells(m)}")
+    tripod = pose.get("tripod")
+    if tripod:
+        n = tripod["images_pooled"]
+        for f, block in {**tripod["by_family"], "all": tripod["all"]}.items():
+            out.append(f"| {f} | tripod | 1 {_pose_cells(block['images_1'])}")
+            out.append(f"| {f} | tripod | {n} {_pose_cells(block[f'images_{n}'])}")
+    return out
+
+
+def sequence_section(seq: Mapping) -> list[str]:
+    """Markdown lines: unfiltered against filtered joints on the recorded test recordings, and the
+    jitter reduction in words."""
+    if not seq.get("all", {}).get("recordings"):
+        return []
+    filters = seq["filters"]
+    out = ["", f"## Recorded test recordings as sequences ({seq['fps']:g} fps): unfiltered and filtered", "",
+           "Causal filters of `armpose predict --sequence` (default tuning). Jitter: mean magnitude of the "
+           "second difference over time, mm per frame^2. The labels' own jitter is what true motion leaves: small for "
+           "a static camera; on moving-camera recordings it includes the per-frame mocap noise of the labels.", "",
+           "| Recordings | count | frames | labels jitter | " + " | ".join(
+               f"{v} joint median cm | {v} jitter" for v in ("unfiltered", *filters)) + " |",
+           "|---|---:|---:|---:|" + "---:|---:|" * (len(filters) + 1)]
+    blocks = {"all": seq["all"], **seq.get("by_family", {}), **{f"{k} camera": v for k, v in seq.get("by_camera", {}).items()}}
+    for name, b in blocks.items():
+        cells = [f"{b[v]['joint_median_cm']:.2f} | {b[v]['jitter_mm']:.2f}" for v in ("unfiltered", *filters)]
+        out.append(f"| {name} | {b['recordings']} | {b['frames']} | {b['labels']['jitter_mm']:.2f} | " + " | ".join(cells) + " |")
+    a = seq["all"]
+    out += ["", "Jitter reduction on all recorded test recordings: " + "; ".join(
+        f"{f} {a[f]['jitter_reduction']:.1f}x ({a[f]['jitter_reduction_pct']:.0f} % less jitter), joint median "
+        f"{a['unfiltered']['joint_median_cm']:.2f} -> {a[f]['joint_median_cm']:.2f} cm" for f in filters) + "."]
+    return out
 
 
 def git_hash(root: Path) -> str:

@@ -14,6 +14,7 @@ a half-written dataset; ``index.json`` is written last.
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import zlib
 from pathlib import Path
@@ -29,11 +30,36 @@ SOURCE_CODES = {"synthetic": 0, "recorded": 1}
 
 def split_for(name: str, source: str, n: int, seed: int, test_fraction: float) -> np.ndarray:
     """0/1 (train/test) per frame: drawn per frame for synthetic recordings, per recording
-    for recorded ones, from a generator seeded by ``seed`` and the recording's name."""
+    for recorded ones, from a generator seeded by ``seed`` and the recording's name.
+
+    The labels stage uses it for synthetic recordings only; recorded ones are split by
+    :func:`recorded_test_names`, which gives every robot type test recordings."""
     rng = np.random.default_rng([seed, 2, zlib.crc32(name.encode())])
     if source == "recorded":
         return np.full(n, int(rng.uniform() < test_fraction), np.uint8)
     return (rng.uniform(size=n) < test_fraction).astype(np.uint8)
+
+
+def recorded_test_names(recordings: list[dict], seed: int, test_fraction: float) -> set[str]:
+    """The names of the recorded recordings that are test data (whole recordings, never frames).
+
+    ``recordings`` are dicts with ``name``, ``robot`` and ``static_camera`` (bool, see
+    :func:`armpose.recording.static_camera`). Rule, deterministic for a given ``seed``:
+
+    - every static-camera (tripod) recording is test: it is the use-case evaluation (pooled
+      camera-to-robot pose over images of one static camera);
+    - of each robot type's moving-camera recordings (n of them, sorted by name),
+      ``ceil(test_fraction * n)`` are test, drawn by a generator seeded by ``seed`` and the robot
+      type; so every robot type with recorded data has recorded test recordings.
+    """
+    test = {r["name"] for r in recordings if r["static_camera"]}
+    for robot in sorted({r["robot"] for r in recordings}):
+        moving = sorted(r["name"] for r in recordings if r["robot"] == robot and not r["static_camera"])
+        if moving:
+            rng = np.random.default_rng([seed, 3, zlib.crc32(robot.encode())])
+            k = math.ceil(test_fraction * len(moving) - 1e-9)
+            test.update(moving[i] for i in rng.choice(len(moving), size=k, replace=False))
+    return test
 
 
 def write_dataset(out: Path, parts: list[dict], index: dict) -> None:

@@ -152,3 +152,44 @@ def handheld_camera(points_base: np.ndarray, camera: Camera, cfg: dict, rng: np.
     if best_frac < cfg["min_in_view"]:
         log.warning("robot fully in view in only %.0f %% of the frames", 100 * best_frac)
     return best, best_frac
+
+
+def tripod_pose(points_base: np.ndarray, camera: Camera, cfg: dict, rng: np.random.Generator,
+                floor_z: float = 0.0) -> np.ndarray:
+    """One ``T_base_cam (4, 4)`` of a camera on a tripod looking at the session's robot centre.
+
+    ``points_base (n, K, 3)`` are the robot's base and joints per frame (base frame, metres). The
+    eye is at a random azimuth, a distance within ``cfg['distance']`` (at least
+    :func:`fit_distance` of all frames' points) and an elevation within ``cfg['elevation_deg']``
+    (eye at most ``cfg['max_height']`` above the floor at ``floor_z``); no roll, no drift, no shake.
+    """
+    centre = points_base.reshape(-1, 3).mean(axis=0)
+    lo, hi = cfg["distance"]
+    lo = min(max(lo, fit_distance(points_base, camera)), hi)
+    dist = rng.uniform(lo, hi)
+    top = np.degrees(np.arcsin(np.clip((floor_z + cfg["max_height"] - centre[2]) / dist, -1.0, 1.0)))
+    el_hi = min(cfg["elevation_deg"][1], top)
+    el = np.radians(rng.uniform(min(cfg["elevation_deg"][0], el_hi), el_hi))
+    az = rng.uniform(0, 2 * np.pi)
+    eye = centre + dist * np.array([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)])
+    return look_at(eye, centre)
+
+
+def tripod_camera(points_base: np.ndarray, camera: Camera, cfg: dict, rng: np.random.Generator,
+                  floor_z: float = 0.0, max_tries: int = 20) -> tuple[np.ndarray, float]:
+    """A static camera ``T_base_cam (n, 4, 4)`` (one :func:`tripod_pose` repeated for every frame)
+    in which at least ``cfg['min_in_view']`` of the frames see the base and every joint (the best
+    of ``max_tries`` draws otherwise), and that fraction. The calibration-free use case: the
+    camera stands still while the robot moves."""
+    n = len(points_base)
+    best, best_frac = None, -1.0
+    for _ in range(max_tries):
+        T = np.repeat(tripod_pose(points_base, camera, cfg, rng, floor_z)[None], n, axis=0)
+        frac = float(in_view(points_base, T, camera).mean())
+        if frac > best_frac:
+            best, best_frac = T, frac
+        if frac >= cfg["min_in_view"]:
+            break
+    if best_frac < cfg["min_in_view"]:
+        log.warning("tripod: robot fully in view in only %.0f %% of the frames", 100 * best_frac)
+    return best, best_frac

@@ -30,6 +30,13 @@ One session (:func:`record_session`), everything drawn from the job's seed:
 6. written camera poses ``T_base_cam = inv(T_world_base_meas) @ T_world_rig_meas(t) @ T_rig_cam_est``,
    so the labels carry calibration and mocap error as those of real recordings do.
 
+Two session kinds (``SessionJob.kind``): ``handheld`` (above) and ``tripod``, the calibration-free
+use case: the camera stands still on a tripod (:func:`~armpose.sessions.motion.tripod_camera`: one
+pose, no walk, drift or shake) while the robot moves. A tripod session still has its rig,
+calibration and mocap, but the rig is measured once for the whole session, as the robot base is,
+so its written camera pose is static too (one pose, repeated per frame) and carries one constant
+calibration-and-mocap error.
+
 ``recording.json`` says ``source: recorded`` and ``simulated: true`` and holds the calibration
 residuals and the errors against the truth; ``camera_poses_true.csv`` holds the true camera poses
 (simulation only; no pipeline stage reads it).
@@ -83,21 +90,23 @@ from armpose.sim.background import (
 )
 from armpose.sim.body import RobotBody
 from armpose.sim.camera import FAR, NEAR, projection_matrix, view_matrix
-from armpose.sessions.motion import handheld_camera, robot_motion
+from armpose.sessions.motion import handheld_camera, robot_motion, tripod_camera
 from armpose.sim.render import _jittered, _load_other_robot, _place_other_robot
 from armpose.sim.scene import SceneRandomizer, camera_effects
 
 log = logging.getLogger(__name__)
 
 VERSION = 1  # bump when a change of this module changes its output: finished sessions are redone
-PLAN_KEYS = ("recordings_dir", "sessions_per_robot")  # params['record'] keys that do not shape a session
+PLAN_KEYS = ("recordings_dir", "sessions_per_robot", "tripod_sessions_per_robot")  # params['record'] keys that do not shape a session
 TRUE_POSES = "camera_poses_true.csv"
+KINDS = ("handheld", "tripod")
 
 
 @dataclasses.dataclass(frozen=True)
 class SessionJob:
     """One simulated session: robot type, frame count, seed, output folder, camera (a
-    ``base.camera`` dict), ``params['record']`` and the robot types (for background robots)."""
+    ``base.camera`` dict), ``params['record']``, the robot types (for background robots) and the
+    session kind (:data:`KINDS`: a ``handheld`` or a static ``tripod`` camera)."""
 
     robot: str
     num_frames: int
@@ -106,12 +115,19 @@ class SessionJob:
     camera: dict
     cfg: dict
     robot_types: tuple[str, ...]
+    kind: str = "handheld"
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"session kind must be one of {KINDS}, got {self.kind!r} ({self.out_dir})")
 
     def signature(self) -> str:
         """A hash of everything that determines the output (for resuming)."""
         cfg = {k: v for k, v in self.cfg.items() if k not in PLAN_KEYS}
-        blob = json.dumps([VERSION, self.robot, self.num_frames, list(self.seed), self.camera, cfg,
-                           list(self.robot_types)], sort_keys=True)
+        parts = [VERSION, self.robot, self.num_frames, list(self.seed), self.camera, cfg, list(self.robot_types)]
+        if self.kind != "handheld":  # handheld signatures stay those of earlier runs
+            parts.append(self.kind)
+        blob = json.dumps(parts, sort_keys=True)
         return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
     def is_done(self) -> bool:
@@ -251,14 +267,19 @@ def read_true_poses(rec_dir: Path) -> np.ndarray:
 def _simulate_rig(job: SessionJob, rng: np.random.Generator, camera: Camera, T_true: np.ndarray,
                   floor_z: float) -> tuple[np.ndarray, dict]:
     """Rig, calibration and mocap for camera poses ``T_true``: the poses to write and the
-    ``recording.json`` entries on calibration and truth."""
+    ``recording.json`` entries on calibration and truth. A ``tripod`` session's rig is measured
+    once (from its first frame; the camera is static) and that one measurement holds for every frame."""
     rig = job.cfg["rig"]
     noise = MocapNoise(**rig["mocap_noise"])
     X = random_rig_offset(rng, rig["offset_translation_m"], rig["offset_rotation_deg"])
     cal = calibrate_rig_offset(X, camera, noise, int(rig["calibration_views"]), int(rng.integers(2**31)))
     T_world_base = robot_in_world(rng, floor_z)
     T_world_base_meas = perturb_pose(T_world_base, rng, noise)
-    T_world_rig_meas = np.stack([perturb_pose(T, rng, noise) for T in T_world_base @ T_true @ invert(X)])
+    T_world_rig = T_world_base @ T_true @ invert(X)
+    if job.kind == "tripod":
+        T_world_rig_meas = np.repeat(perturb_pose(T_world_rig[0], rng, noise)[None], len(T_true), axis=0)
+    else:
+        T_world_rig_meas = np.stack([perturb_pose(T, rng, noise) for T in T_world_rig])
     T_written = recorded_poses(T_world_base_meas, T_world_rig_meas, cal.T_rig_cam)
     deg, mm = pose_error(cal.T_rig_cam, X)
     base_deg, base_mm = pose_error(T_world_base_meas, T_world_base)
@@ -292,7 +313,10 @@ def record_session(job: SessionJob) -> int:
         light, noise_cfg = scene.lighting(), _session_camera_noise(rcfg["camera_noise"], rng)
         q = robot_motion(body, support, rng, n, fps, cfg["robot"])
         points = np.concatenate([np.zeros((n, 1, 3)), kin.joint_positions(q)], axis=1)
-        T_true, frac = handheld_camera(points, camera, cfg["camera"], rng, fps, scene.floor_z)
+        if job.kind == "tripod":
+            T_true, frac = tripod_camera(points, camera, cfg["camera"], rng, scene.floor_z)
+        else:
+            T_true, frac = handheld_camera(points, camera, cfg["camera"], rng, fps, scene.floor_z)
         _clear_view(client, scene, other, T_true[:, :3, 3], points, rng, spec.reach)
         T_written, info = _simulate_rig(job, rng, camera, T_true, scene.floor_z)
         proj, rays = projection_matrix(camera), pixel_rays(camera)
@@ -304,10 +328,11 @@ def record_session(job: SessionJob) -> int:
         info["simulation"]["label_error"] = {k: _stats(v) for k, v in errors.items()}
         _write_true_poses(tmp, T_true)
         meta = RecordingMeta(job.robot, camera, "recorded",
-                             notes=f"SIMULATED handheld-camera session with a mocap rig (armpose record, "
+                             notes=f"SIMULATED {job.kind}-camera session with a mocap rig (armpose record, "
                                    f"PyBullet TinyRenderer), seed {list(job.seed)}")
         extra = {"simulated": True, "generator": {"name": "armpose.record", "signature": job.signature()},
-                 "session": {"fps": fps, "duration_s": n / fps, "robot_in_view_fraction": frac}, **info}
+                 "session": {"kind": job.kind, "fps": fps, "duration_s": n / fps, "robot_in_view_fraction": frac},
+                 **info}
         write_tables(tmp, meta, spec, np.arange(n), q, _pose_rows(T_written), extra=extra)
         if job.out_dir.exists():
             shutil.rmtree(job.out_dir)

@@ -1,7 +1,10 @@
 """Stage ``evaluate``: the paper's Table II and figures, regenerated from the trained models.
 
 Evaluates the two-stage transfer model and the full-training model on the held-out test
-split, per family, type and data source (:mod:`armpose.evaluate`), and writes:
+split, per family, type and data source (synthetic test frames, recorded test recordings;
+:mod:`armpose.evaluate`), the camera-to-robot pose from one image and pooled over images of a
+static camera (:mod:`armpose.pose_eval`), and raw against filtered sequence metrics on the
+recorded test recordings (:mod:`armpose.sequence_eval`), and writes:
 
 - ``results/metrics.json``: hierarchical metrics (DVC metrics), plus latency and timing;
 - ``results/results_table.md``: the paper's Table II side by side with ours;
@@ -27,6 +30,7 @@ from armpose.config import load_params, project_root
 from armpose.evaluate import evaluate_checkpoint, family_of, load_model, pixel_scale_of
 from armpose.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from armpose.metrics import error_by_distance, joint_errors, project
+from armpose.model import predicted_mask
 from armpose.report import environment, results_table
 from armpose.train import load_checkpoint
 from armpose import viz_eval
@@ -84,7 +88,7 @@ def example_columns(checkpoint: Path, data_dir: Path, pred: dict, truth: dict, r
         i = int(rng.choice(idx))
         item = LabelledFrames(data_dir, truth["row"][i:i + 1])[0]
         with torch.no_grad():
-            mask = (model(item["image"][None].contiguous(memory_format=torch.channels_last))["mask_logits"][0, 0] > 0).numpy()
+            mask = predicted_mask(model, model(item["image"][None].contiguous(memory_format=torch.channels_last))["mask_logits"][0, 0]).numpy()
         k = truth["intrinsics"][i:i + 1]
         valid = truth["joint_valid"][i]
         cols.append({"image": (item["image"].permute(1, 2, 0).numpy() * 255).astype(np.uint8),
@@ -106,16 +110,23 @@ def training_minutes(root: Path, stages: list[str]) -> float:
     return total / 60
 
 
-def camera_pose_metrics(pred_truth: tuple[dict, dict], data_dir: Path, root: Path, robot_types: list[str]) -> dict:
-    """Single-image camera-to-robot pose errors per family (:mod:`armpose.pose_eval`)."""
+def recorded_metrics(pred_truth: tuple[dict, dict], data_dir: Path, root: Path, params: dict,
+                     camera_pose: bool) -> dict:
+    """Camera-to-robot pose per family (single images on the synthetic test set; single and pooled
+    images on the static-camera test recordings; :mod:`armpose.pose_eval`), if ``camera_pose``, and
+    raw against filtered sequence metrics on the recorded test recordings (:mod:`armpose.sequence_eval`)."""
     from armpose.labels.dataset import load_dataset
-    from armpose.pose_eval import frame_pose_errors, summarise_poses
+    from armpose.pose_eval import camera_pose_metrics
+    from armpose.sequence_eval import sequence_metrics
     pred, truth = pred_truth
     arrays, index = load_dataset(data_dir)
-    errors = frame_pose_errors(pred, truth, index, arrays, root)
-    fams = np.array(family_of(robot_types))[truth["type"]]
-    return {"by_family": {f: summarise_poses(errors, np.flatnonzero(fams == f)) for f in dict.fromkeys(fams.tolist())},
-            "all": summarise_poses(errors, np.arange(len(fams)))}
+    cfg, families = params["evaluate"], family_of(list(params["base"]["robot_types"]))
+    out = {"sequence": sequence_metrics(pred, truth, index, arrays, families, float(params["record"]["fps"]),
+                                        list(cfg.get("sequence_filters", ["kalman"])))}
+    if camera_pose:
+        out["camera_pose"] = camera_pose_metrics(pred, truth, index, arrays, root, families,
+                                                 int(cfg.get("pose_pool_images", 10)))
+    return out
 
 
 TRAINING_STAGES = ("pretrain", "transfer_stage1", "transfer_stage2", "train_full")
@@ -149,7 +160,8 @@ def run(params: dict, root: Path | None = None) -> dict:
         m, pred, truth = evaluate_checkpoint(root / ckpt, data_dir, base, "test", int(cfg["batch_size"]))
         metrics[name] = {"checkpoint": ckpt, "test": m}
         preds[name] = (pred, truth)
-    metrics["transfer"]["test"]["camera_pose"] = camera_pose_metrics(preds["transfer"], data_dir, root, types)
+    for name, pred_truth in preds.items():
+        metrics[name]["test"].update(recorded_metrics(pred_truth, data_dir, root, params, name == "transfer"))
     latency_path = root / RESULTS / "latency.json"
     metrics["latency"] = json.loads(latency_path.read_text()) if latency_path.exists() else {}
     metrics["timing"] = training_timing(root)

@@ -3,6 +3,11 @@
 Reads ``params['base']`` and ``params['labels']``; writes ``data/labels/`` (see
 :mod:`armpose.labels.dataset`). Per-recording results are cached in ``data/.cache/labels``
 by content, so an interrupted run resumes and unchanged recordings are not labelled twice.
+
+Split: synthetic recordings per frame (:func:`~armpose.labels.dataset.split_for`); recorded ones
+per recording (:func:`~armpose.labels.dataset.recorded_test_names`: every static-camera recording
+is test, and every robot type gets moving-camera test recordings). ``index.json`` marks each
+recording's ``static_camera``.
 """
 from __future__ import annotations
 
@@ -18,10 +23,10 @@ import numpy as np
 from armpose.config import load_params, project_root
 from armpose.io import atomic_write_bytes
 from armpose.labels.compute import label_recording
-from armpose.labels.dataset import SOURCE_CODES, split_for, write_dataset
+from armpose.labels.dataset import SOURCE_CODES, recorded_test_names, split_for, write_dataset
 from armpose.labels.quality import joints_near_mask
 from armpose.parallel import run_jobs
-from armpose.recording import find_recordings
+from armpose.recording import find_recordings, static_camera
 
 log = logging.getLogger(__name__)
 LABEL_VERSION = 1
@@ -76,20 +81,27 @@ def run(params: dict, root: Path | None = None) -> dict:
     sizes = {j.rec_dir: len(list((j.rec_dir / "frames").glob("*.png"))) for j in jobs}
     summaries = run_jobs(_label_job, jobs, int(base["num_workers"]), weight=lambda j: sizes[j.rec_dir],
                          desc="labels")
+    names = [str(j.rec_dir.relative_to(root)) if j.rec_dir.is_relative_to(root) else str(j.rec_dir) for j in jobs]
+    static = [summ["source"] == "recorded" and static_camera(job.rec_dir) for job, summ in zip(jobs, summaries)]
+    recorded_test = recorded_test_names(
+        [{"name": name, "robot": summ["robot"], "static_camera": st}
+         for name, summ, st in zip(names, summaries, static) if summ["source"] == "recorded"],
+        int(base["seed"]), float(cfg["test_fraction"]))
     parts, index_recs, skipped = [], [], []
-    for k, (job, summ) in enumerate(zip(jobs, summaries)):
+    for k, (job, summ, name) in enumerate(zip(jobs, summaries, names)):
         if summ["robot"] not in base["robot_types"]:
             raise ValueError(f"{job.rec_dir}: robot {summ['robot']!r} is not in base.robot_types "
                              f"{base['robot_types']}")
-        name = str(job.rec_dir.relative_to(root)) if job.rec_dir.is_relative_to(root) else str(job.rec_dir)
         with np.load(job.cache) as npz:
             part = {key: npz[key] for key in npz.files if key != "_meta"}
         n = summ["frames"]
         part.update(robot=np.full(n, base["robot_types"].index(summ["robot"]), np.int64),
                     recording=np.full(n, k, np.int64), source=np.full(n, SOURCE_CODES[summ["source"]], np.uint8),
-                    split=split_for(name, summ["source"], n, int(base["seed"]), float(cfg["test_fraction"])))
+                    split=(np.full(n, int(name in recorded_test), np.uint8) if summ["source"] == "recorded" else
+                           split_for(name, summ["source"], n, int(base["seed"]), float(cfg["test_fraction"]))))
         parts.append(part)
-        index_recs.append({"name": name, "robot": summ["robot"], "source": summ["source"], "frames": n})
+        index_recs.append({"name": name, "robot": summ["robot"], "source": summ["source"], "frames": n,
+                           "static_camera": static[k]})
         skipped += summ["skipped"]
     split = np.concatenate([p["split"] for p in parts])
     on_mask = np.concatenate([joints_near_mask(p["masks"], p["joints"], p["joint_valid"], p["intrinsics"])

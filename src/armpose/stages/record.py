@@ -5,7 +5,9 @@ recordings (source ``recorded``) and ``data/record/summary.json``.
 
 - ``record.recordings_dir: null``: simulate ``sessions_per_robot`` sessions per robot type
   (:mod:`armpose.sessions.session`: handheld camera, moving robot, rig calibration and mocap noise),
-  named ``<robot>_sNN``. A finished session of an identical job is kept, so a run resumes.
+  named ``<robot>_sNN``, and ``tripod_sessions_per_robot`` static-camera sessions (the camera on a
+  tripod, the robot moving: the calibration-free use case), named ``<robot>_tNN``. A finished
+  session of an identical job is kept, so a run resumes.
 - ``record.recordings_dir: <folder>`` (relative to the project root, or absolute): validate every
   recording there and hard-link (or copy) it in instead (:mod:`armpose.importers.recordings`).
 
@@ -32,16 +34,25 @@ log = logging.getLogger(__name__)
 STAGE_SEED = 5  # second entry of every session seed: the stage's own stream
 
 
+#: session kind -> (``params['record']`` key of the sessions per robot, name letter, extra seed entries)
+KIND_PLAN = {"handheld": ("sessions_per_robot", "s", ()), "tripod": ("tripod_sessions_per_robot", "t", (1,))}
+
+
 def plan(params: dict, out: Path) -> list[SessionJob]:
-    """The simulated sessions of ``params``: one job per recording, each with its own seed."""
+    """The simulated sessions of ``params``: one job per recording, each with its own seed
+    (handheld ``(seed, 5, robot index, k)``, tripod ``(seed, 5, robot index, k, 1)``)."""
     base, cfg = params["base"], params["record"]
-    unknown = sorted(set(cfg["sessions_per_robot"]) - set(base["robot_types"]))
-    if unknown:
-        raise ValueError(f"record.sessions_per_robot names {unknown}, not in base.robot_types {base['robot_types']}")
-    return [SessionJob(robot, int(cfg["frames_per_session"]), (int(base["seed"]), STAGE_SEED, r_idx, k),
-                       out / robot / f"{robot}_s{k:02d}", dict(base["camera"]), cfg, tuple(base["robot_types"]))
-            for r_idx, robot in enumerate(base["robot_types"])
-            for k in range(int(cfg["sessions_per_robot"].get(robot, 0)))]
+    jobs = []
+    for kind, (key, letter, extra) in KIND_PLAN.items():
+        counts = cfg.get(key) or {}
+        unknown = sorted(set(counts) - set(base["robot_types"]))
+        if unknown:
+            raise ValueError(f"record.{key} names {unknown}, not in base.robot_types {base['robot_types']}")
+        jobs += [SessionJob(robot, int(cfg["frames_per_session"]), (int(base["seed"]), STAGE_SEED, r_idx, k, *extra),
+                            out / robot / f"{robot}_{letter}{k:02d}", dict(base["camera"]), cfg,
+                            tuple(base["robot_types"]), kind)
+                 for r_idx, robot in enumerate(base["robot_types"]) for k in range(int(counts.get(robot, 0)))]
+    return jobs
 
 
 def _clean(out: Path, wanted: set[Path]) -> None:
@@ -60,6 +71,7 @@ def session_entry(rec_dir: Path, out: Path) -> dict:
     meta = json.loads((rec_dir / "recording.json").read_text())
     cal, sim = meta.get("rig_calibration"), meta.get("simulation", {})
     return {"name": str(rec_dir.relative_to(out)), "robot": meta["robot"],
+            "kind": meta.get("session", {}).get("kind"),
             "frames": len(list((rec_dir / "frames").glob("*.png"))), "simulated": bool(meta.get("simulated")),
             "calibration": None if cal is None else {k: cal[k] for k in ("views_given", "views_used",
                                                                          "rms_reprojection_px", "predicted_std")},
