@@ -42,7 +42,7 @@ def test_synthetic_split_is_the_old_per_frame_draw():
     for name, n, seed in (("data/render/ur5/ur5_000", 2000, 2019), ("data/render/panda/panda_003", 100, 7)):
         rng = np.random.default_rng([seed, 2, zlib.crc32(name.encode())])
         old = (rng.uniform(size=n) < 0.2).astype(np.uint8)
-        np.testing.assert_array_equal(split_for(name, "synthetic", n, seed, 0.2), old)
+        np.testing.assert_array_equal(split_for(name, n, seed, 0.2), old)
 
 
 # --------------------------------------------------------------------------- pooled pose

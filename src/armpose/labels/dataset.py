@@ -28,15 +28,11 @@ ARRAYS = ("images", "masks", "joints", "joint_valid", "base", "distance", "intri
 SOURCE_CODES = {"synthetic": 0, "recorded": 1}
 
 
-def split_for(name: str, source: str, n: int, seed: int, test_fraction: float) -> np.ndarray:
-    """0/1 (train/test) per frame: drawn per frame for synthetic recordings, per recording
-    for recorded ones, from a generator seeded by ``seed`` and the recording's name.
-
-    The labels stage uses it for synthetic recordings only; recorded ones are split by
-    :func:`recorded_test_names`, which gives every robot type test recordings."""
+def split_for(name: str, n: int, seed: int, test_fraction: float) -> np.ndarray:
+    """0/1 (train/test) per frame of synthetic recording ``name`` (``n`` frames), each frame
+    test with probability ``test_fraction``, from a generator seeded by ``seed`` and the name.
+    Recorded recordings are split whole, by :func:`recorded_test_names`."""
     rng = np.random.default_rng([seed, 2, zlib.crc32(name.encode())])
-    if source == "recorded":
-        return np.full(n, int(rng.uniform() < test_fraction), np.uint8)
     return (rng.uniform(size=n) < test_fraction).astype(np.uint8)
 
 

@@ -98,7 +98,7 @@ def run(params: dict, root: Path | None = None) -> dict:
         part.update(robot=np.full(n, base["robot_types"].index(summ["robot"]), np.int64),
                     recording=np.full(n, k, np.int64), source=np.full(n, SOURCE_CODES[summ["source"]], np.uint8),
                     split=(np.full(n, int(name in recorded_test), np.uint8) if summ["source"] == "recorded" else
-                           split_for(name, summ["source"], n, int(base["seed"]), float(cfg["test_fraction"]))))
+                           split_for(name, n, int(base["seed"]), float(cfg["test_fraction"]))))
         parts.append(part)
         index_recs.append({"name": name, "robot": summ["robot"], "source": summ["source"], "frames": n,
                            "static_camera": static[k]})
