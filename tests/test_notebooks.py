@@ -80,6 +80,11 @@ def test_notebooks_execute(tmp_path):
     assert index_path.exists()
     index = json.loads(index_path.read_text())
     quick = profile_params("quick")
-    assert index["num_frames"] == sum(quick["render"]["frames_per_robot"].values())
+    by_source = {}
+    for rec in index["recordings"]:
+        by_source[rec["source"]] = by_source.get(rec["source"], 0) + rec["frames"]
+    assert by_source["synthetic"] == sum(quick["render"]["frames_per_robot"].values())
+    assert by_source["recorded"] > 0, "the record stage's sessions are labelled too"
+    assert index["num_frames"] == sum(by_source.values())
     assert index["num_train"] + index["num_test"] == index["num_frames"]
     assert not list(work.iterdir()), "the notebooks wrote into their working directory"

@@ -46,7 +46,7 @@ Mask decision. The mask loss (paper eq. 1-3) weights each class by its inverse f
 the trained logit estimates ``log(P(fg)/P(bg)) + log(w_fg/w_bg)``: thresholding it at 0 calls
 a pixel robot whenever P(robot) is above the robot's share of the image (about 5 %), which
 costs pixel accuracy. :func:`predicted_mask` thresholds at the buffer
-``mask_threshold`` instead, ``log((1 - pi) / pi)`` with ``pi`` the mean foreground fraction of
+``mask_decoder.threshold`` instead, ``log((1 - pi) / pi)`` with ``pi`` the mean foreground fraction of
 the training frames (set by :func:`armpose.train.train` whenever the mask decoder trains):
 the Bayes decision for pixel accuracy. The loss is untouched.
 
@@ -155,13 +155,18 @@ def _resize(x: torch.Tensor, size) -> torch.Tensor:
 
 
 class MaskDecoder(nn.Module):
-    """Light FPN: laterals to ``w`` channels, top-down sum, one 3x3 conv at stride 4, one logit."""
+    """Light FPN: laterals to ``w`` channels, top-down sum, one 3x3 conv at stride 4, one logit.
+
+    The buffer ``threshold`` is the logit above which a pixel is called robot (see the module
+    docstring); it belongs to this group, so it changes only in a stage where the decoder trains.
+    """
 
     def __init__(self, w: int):
         super().__init__()
         self.lateral = nn.ModuleList(conv_bn_relu(c, w, 1) for c in (w, 2 * w, 4 * w, 8 * w))
         self.smooth = separable(w, w)
         self.predict = nn.Conv2d(w, 1, 1)
+        self.register_buffer("threshold", torch.zeros(()))
 
     def forward(self, feats: list[torch.Tensor], size) -> torch.Tensor:
         p = self.lateral[3](feats[3])
@@ -288,7 +293,6 @@ class ArmPoseNet(nn.Module):
         self.trunk = Trunk(width)
         self.mask_decoder = MaskDecoder(width)
         self.heads = Heads(width, num_types, max_joints, half_fov_tan, depth)
-        self.register_buffer("mask_threshold", torch.zeros(()))
 
     def forward(self, image: torch.Tensor | None = None, *,
                 features: list[torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
@@ -302,10 +306,15 @@ class ArmPoseNet(nn.Module):
         out["mask_logits"] = self.mask_decoder(feats, image.shape[-2:])
         return out
 
+    @property
+    def mask_threshold(self) -> torch.Tensor:
+        """The mask decision logit, ``mask_decoder.threshold`` (0 until :meth:`set_mask_prior`)."""
+        return self.mask_decoder.threshold
+
     def set_mask_prior(self, foreground_fraction: float) -> None:
         """Set ``mask_threshold`` to ``log((1 - pi) / pi)`` for training-set foreground share ``pi``."""
         pi = min(max(float(foreground_fraction), 1e-4), 1 - 1e-4)
-        self.mask_threshold.fill_(math.log((1 - pi) / pi))
+        self.mask_decoder.threshold.fill_(math.log((1 - pi) / pi))
 
     @torch.no_grad()
     def trunk_features(self, image: torch.Tensor) -> list[torch.Tensor]:
