@@ -1,8 +1,8 @@
 """The narrated notebooks: paired with their percent scripts, and executable end to end.
 
-The notebooks run with papermill, in pipeline order (render, labels, pretrain, transfer stage 1,
-transfer stage 2, evaluation), on the ``quick`` profile into one temporary root, with a working directory that is
-neither the project nor the root.
+The notebooks run with papermill, in pipeline order (record, render, labels, pretrain, transfer
+stage 1, transfer stage 2, evaluation, then the beyond-the-paper notebook 07), on the ``quick``
+profile into one temporary root, with a working directory that is neither the project nor the root.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from armpose.config import profile_params
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = ["00_record", "01_render", "02_labels", "03_pretrain", "04_transfer_stage1", "05_transfer_stage2",
-             "06_evaluate"]   # pipeline order
+             "06_evaluate", "07_beyond"]   # pipeline order; 07 reads what the stages wrote
 KERNEL = "python3"
 
 
@@ -71,6 +71,7 @@ def test_notebooks_execute(tmp_path):
     assert pngs(executed["04_transfer_stage1"]) >= 1   # loss curves
     assert pngs(executed["05_transfer_stage2"]) >= 3   # architecture, loss curves, both stages
     assert pngs(executed["06_evaluate"]) >= 6    # figures (a)-(f)
+    assert pngs(executed["07_beyond"]) >= 2      # poses after the bump, tracked joint over time
     for name in ("metrics.json", "results_table.md", "latency.json", "env.json"):
         assert (tmp_root / "results" / name).exists(), name
     for stage in ("pretrain", "transfer_stage1", "transfer_stage2"):

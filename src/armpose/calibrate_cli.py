@@ -33,7 +33,8 @@ from armpose.camera_pose import METHODS
 from armpose.extrinsics import estimate_extrinsics, match_rows, read_joint_csv
 from armpose.geometry import Camera
 from armpose.io import atomic_write_json
-from armpose.predict import PredictError, expand_inputs, load_intrinsics, predict
+from armpose.intrinsics import load_intrinsics
+from armpose.predict import PredictError, expand_inputs, predict
 from armpose.recording import RecordingError
 from armpose.robots.registry import UnknownRobotError, get_robot
 from armpose.train import load_checkpoint

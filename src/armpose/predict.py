@@ -25,8 +25,9 @@ import numpy as np
 import torch
 
 from armpose.geometry import Camera
-from armpose.model import predicted_mask
+from armpose.intrinsics import load_intrinsics
 from armpose.io import atomic_write_bytes
+from armpose.model import predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint
 
@@ -91,22 +92,6 @@ def read_image(path: Path) -> np.ndarray:
     if img is None:
         raise PredictError(f"{path}: not a readable image (PNG or JPEG expected, {data.size} bytes)")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-
-
-def load_intrinsics(path: Path) -> Camera:
-    """A :class:`Camera` from JSON with width, height, fx, fy, cx, cy; errors name the file and key."""
-    import json
-    try:
-        d = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as err:
-        raise PredictError(f"{path}: not readable intrinsics JSON ({err})") from err
-    missing = [k for k in ("width", "height", "fx", "fy", "cx", "cy") if k not in d]
-    if missing:
-        raise PredictError(f"{path}: intrinsics lack {missing}")
-    cam = Camera.from_dict(d)
-    if cam.fx <= 0 or cam.fy <= 0 or cam.width <= 0 or cam.height <= 0:
-        raise PredictError(f"{path}: intrinsics must be positive, got {d}")
-    return cam
 
 
 class Predictor:

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from armpose.extrinsics import match_rows, read_joint_csv
+from armpose.intrinsics import IntrinsicsError
 from armpose.io import atomic_write_bytes, atomic_write_text
 from armpose.predict import PredictError, predict, read_image
 from armpose.recording import RecordingError
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rows = predict(args.inputs, args.checkpoint, args.intrinsics, Path(args.masks) if args.masks else None,
                        args.device, errors=errors)
-    except PredictError as err:
+    except (PredictError, IntrinsicsError) as err:
         print(f"armpose predict: {err}", file=sys.stderr)
         return 1
     for msg in errors:

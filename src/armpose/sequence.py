@@ -35,7 +35,8 @@ import numpy as np
 from armpose.camera_pose import robust_rigid, to_matrix
 from armpose.extrinsics import correspondences, kinematics
 from armpose.geometry import Camera, matrix_to_quat, quat_to_matrix
-from armpose.predict import PredictError, Predictor, expand_inputs, load_intrinsics, read_image, write_mask
+from armpose.intrinsics import load_intrinsics
+from armpose.predict import PredictError, Predictor, expand_inputs, read_image, write_mask
 from armpose.robots.registry import get_robot
 from armpose.tracking import KalmanFilter3D, OneEuroFilter
 

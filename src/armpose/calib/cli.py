@@ -18,7 +18,8 @@ from pathlib import Path
 
 from armpose.calib.rig import OUTLIER_K, RigSettings, calibrate_rig
 from armpose.calib.solve import MocapNoise
-from armpose.calib.views import load_views, read_board, read_intrinsics, write_session
+from armpose.calib.views import load_views, read_board, write_session
+from armpose.intrinsics import read_intrinsics
 from armpose.io import atomic_write_json
 
 PROG = "armpose calibrate-rig"

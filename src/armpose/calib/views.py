@@ -9,7 +9,7 @@ Layout::
                           with the rig), or one row with image "*" (the board measured once)
     cam.json              {"width", "height", "fx", "fy", "cx", "cy"} in pixels, optionally
                           "distortion": OpenCV coefficients [k1, k2, p1, p2, k3, ...]; or a
-                          recording.json (its "camera" object)
+                          recording.json (its "camera" object); read by armpose.intrinsics
     board.json            {"squares_x", "squares_y", "square_length", "marker_length"} (metres), optionally
                           "dictionary" (default "DICT_4X4_50") and "legacy_pattern" (default false)
 
@@ -38,7 +38,6 @@ POSE_HEADER = ["image", "x", "y", "z", "qx", "qy", "qz", "qw"]
 RIG_POSES, BOARD_POSES = "rig_poses.csv", "board_poses.csv"
 ALL_IMAGES = "*"  # board_poses.csv: one pose for every image
 QUAT_TOLERANCE = 1e-3
-DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 
 
 class CalibInputError(ValueError):
@@ -102,30 +101,6 @@ def _read_json(path: Path):
         raise CalibInputError(path, None, None, "missing file") from None
     except json.JSONDecodeError as err:
         raise CalibInputError(path, err.lineno, err.msg, "not valid JSON") from err
-
-
-def read_intrinsics(path: Path) -> tuple[Camera, np.ndarray | None]:
-    """The pinhole camera and optional distortion coefficients from ``cam.json`` (or a recording.json)."""
-    path = Path(path)
-    raw = _read_json(path)
-    if isinstance(raw, dict) and isinstance(raw.get("camera"), dict):
-        raw = raw["camera"]
-    keys = ("width", "height", "fx", "fy", "cx", "cy")
-    if not isinstance(raw, dict) or any(k not in raw for k in keys):
-        raise CalibInputError(path, None, sorted(raw) if isinstance(raw, dict) else raw,
-                              f"intrinsics need {', '.join(keys)}")
-    for k in keys:
-        v = raw[k]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 \
-                or (k in ("width", "height", "fx", "fy") and v <= 0):
-            raise CalibInputError(path, None, v, f"{k} must be a positive number")
-    dist = raw.get("distortion")
-    if dist is not None:
-        if not isinstance(dist, list) or len(dist) not in DISTORTION_LENGTHS or \
-                not all(isinstance(d, (int, float)) and not isinstance(d, bool) and np.isfinite(d) for d in dist):
-            raise CalibInputError(path, None, dist, f"distortion must be a list of {DISTORTION_LENGTHS} numbers")
-        dist = np.asarray(dist, dtype=np.float64)
-    return Camera.from_dict(raw), dist
 
 
 def read_board(path: Path) -> BoardSpec:

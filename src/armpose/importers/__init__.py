@@ -9,8 +9,9 @@ index and stamp, and the value.
 """
 from armpose.importers.assemble import ImportOptions
 from armpose.importers.bag import import_bag
-from armpose.importers.common import NothingKeptError, SourceError, load_intrinsics, load_transform
+from armpose.importers.common import NothingKeptError, SourceError, load_transform
 from armpose.importers.folder import import_folder
+from armpose.intrinsics import load_intrinsics
 
 __all__ = ["ImportOptions", "NothingKeptError", "SourceError", "import_bag", "import_folder",
            "load_intrinsics", "load_transform"]

@@ -12,7 +12,8 @@ import json
 import logging
 import sys
 
-from armpose.importers.common import NothingKeptError, load_intrinsics, load_transform, parse_pose_text
+from armpose.importers.common import NothingKeptError, load_transform, parse_pose_text
+from armpose.intrinsics import load_intrinsics
 from armpose.recording import RecordingError
 
 

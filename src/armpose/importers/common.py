@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from armpose.geometry import Camera, invert, matrix_to_quat, pose_to_matrix
+from armpose.geometry import invert, matrix_to_quat, pose_to_matrix
 from armpose.recording import QUAT_TOLERANCE, RecordingError
 from armpose.robots.registry import RobotSpec
 
@@ -189,19 +189,6 @@ def _transform_from_json(raw, what: str) -> np.ndarray:
         raise ValueError(f"{what} needs a 4x4 matrix, translation + quaternion_xyzw, or keys {keys}; got {raw!r}")
     pose = parse_pose_text(",".join(str(raw[k]) for k in keys), what)
     return pose_to_matrix(pose[:3], pose[3:])
-
-
-def load_intrinsics(path: str | Path) -> Camera:
-    """Camera from a JSON file with width, height (pixels), fx, fy, cx, cy (pixels)."""
-    path = Path(path)
-    try:
-        raw = json.loads(path.read_text())
-        camera = Camera.from_dict(raw.get("camera", raw))
-    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as err:
-        raise ValueError(f"{path}: intrinsics need width, height, fx, fy, cx, cy ({err})") from None
-    if camera.width <= 0 or camera.height <= 0 or camera.fx <= 0 or camera.fy <= 0:
-        raise ValueError(f"{path}: intrinsics must be positive: {camera}")
-    return camera
 
 
 def compose_poses(poses: np.ndarray, T_left: np.ndarray | None, T_right: np.ndarray | None) -> np.ndarray:

@@ -141,16 +141,24 @@ def handheld_camera(points_base: np.ndarray, camera: Camera, cfg: dict, rng: np.
                     floor_z: float = 0.0, max_tries: int = 20) -> tuple[np.ndarray, float]:
     """A :func:`camera_orbit` in which at least ``cfg['min_in_view']`` of the frames see the base and
     every joint inside the image (the best of ``max_tries`` draws otherwise), and that fraction."""
+    return _best_draw(lambda: camera_orbit(points_base, camera, cfg, rng, fps, floor_z), points_base, camera,
+                      cfg["min_in_view"], max_tries, "handheld")
+
+
+def _best_draw(draw, points_base: np.ndarray, camera: Camera, min_in_view: float, max_tries: int,
+               kind: str) -> tuple[np.ndarray, float]:
+    """The first camera path ``draw()`` (``T_base_cam (n, 4, 4)``) in which at least ``min_in_view``
+    of the frames see the base and every joint, else the best of ``max_tries`` draws; and that fraction."""
     best, best_frac = None, -1.0
     for _ in range(max_tries):
-        T = camera_orbit(points_base, camera, cfg, rng, fps, floor_z)
+        T = draw()
         frac = float(in_view(points_base, T, camera).mean())
         if frac > best_frac:
             best, best_frac = T, frac
-        if frac >= cfg["min_in_view"]:
+        if frac >= min_in_view:
             break
-    if best_frac < cfg["min_in_view"]:
-        log.warning("robot fully in view in only %.0f %% of the frames", 100 * best_frac)
+    if best_frac < min_in_view:
+        log.warning("%s: robot fully in view in only %.0f %% of the frames", kind, 100 * best_frac)
     return best, best_frac
 
 
@@ -182,14 +190,5 @@ def tripod_camera(points_base: np.ndarray, camera: Camera, cfg: dict, rng: np.ra
     of ``max_tries`` draws otherwise), and that fraction. The calibration-free use case: the
     camera stands still while the robot moves."""
     n = len(points_base)
-    best, best_frac = None, -1.0
-    for _ in range(max_tries):
-        T = np.repeat(tripod_pose(points_base, camera, cfg, rng, floor_z)[None], n, axis=0)
-        frac = float(in_view(points_base, T, camera).mean())
-        if frac > best_frac:
-            best, best_frac = T, frac
-        if frac >= cfg["min_in_view"]:
-            break
-    if best_frac < cfg["min_in_view"]:
-        log.warning("tripod: robot fully in view in only %.0f %% of the frames", 100 * best_frac)
-    return best, best_frac
+    return _best_draw(lambda: np.repeat(tripod_pose(points_base, camera, cfg, rng, floor_z)[None], n, axis=0),
+                      points_base, camera, cfg["min_in_view"], max_tries, "tripod")

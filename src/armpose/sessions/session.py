@@ -91,7 +91,7 @@ from armpose.sim.background import (
 from armpose.sim.body import RobotBody
 from armpose.sim.camera import FAR, NEAR, projection_matrix, view_matrix
 from armpose.sessions.motion import handheld_camera, robot_motion, tripod_camera
-from armpose.sim.render import _jittered, _load_other_robot, _place_other_robot
+from armpose.sim.render import jittered_color, load_other_robot, place_other_robot
 from armpose.sim.scene import SceneRandomizer, camera_effects
 
 log = logging.getLogger(__name__)
@@ -191,8 +191,8 @@ def _session_camera_noise(cfg: dict, rng: np.random.Generator) -> dict:
 def _color_robot(body: RobotBody, rcfg: dict, rng: np.random.Generator) -> None:
     app = body.spec.appearance
     jitter = rcfg["robot_appearance"]["color_jitter"] if rcfg["robot_appearance"]["enabled"] else 0.0
-    body.set_colors(_jittered(app.default_color, rng, jitter),
-                    {k: _jittered(v, rng, jitter) for k, v in app.link_colors.items()})
+    body.set_colors(jittered_color(app.default_color, rng, jitter),
+                    {k: jittered_color(v, rng, jitter) for k, v in app.link_colors.items()})
 
 
 def _aabb(client: int, body: int) -> tuple[np.ndarray, np.ndarray]:
@@ -227,7 +227,7 @@ def _clear_view(client: int, scene: SceneRandomizer, other: RobotBody | None, ey
     if other is None:
         return None
     for _ in range(20):
-        _place_other_robot(other, rng, reach, scene.floor_z)
+        place_other_robot(other, rng, reach, scene.floor_z)
         if not _blocks_view(*_aabb(client, other.id), eyes, points, margin=0.2):
             return other
     other.remove()
@@ -307,7 +307,7 @@ def record_session(job: SessionJob) -> int:
     try:
         body = RobotBody(client, spec, kin, self_collision=True)
         scene = SceneRandomizer(client, rng, rcfg, spec.reach, max(cfg["camera"]["distance"]))
-        other = _load_other_robot(client, job, rng)
+        other = load_other_robot(client, job, rng)
         support = scene.new_scene()
         _color_robot(body, rcfg, rng)
         light, noise_cfg = scene.lighting(), _session_camera_noise(rcfg["camera_noise"], rng)

@@ -52,14 +52,15 @@ class RenderJob:
         return json.loads(meta.read_text()).get("generator", {}).get("signature") == self.signature()
 
 
-def _jittered(color, rng: np.random.Generator, amount: float):
+def jittered_color(color, rng: np.random.Generator, amount: float):
+    """RGBA ``color`` (0-1) with Gaussian noise of std ``amount`` on R, G and B; None stays None."""
     if color is None:
         return None
     rgb = np.clip(np.asarray(color[:3]) + rng.normal(0, amount, 3), 0, 1)
     return [*rgb.tolist(), color[3]]
 
 
-def _load_other_robot(client: int, job: RenderJob, rng: np.random.Generator):
+def load_other_robot(client: int, job: RenderJob, rng: np.random.Generator):
     """Maybe load another robot type to appear, unlabelled, in the background."""
     prob = job.cfg["randomize"]["background"].get("other_robot_prob", 0.0)
     others = [r for r in job.robot_types if r != job.robot]
@@ -71,7 +72,7 @@ def _load_other_robot(client: int, job: RenderJob, rng: np.random.Generator):
     return body
 
 
-def _place_other_robot(body: RobotBody | None, rng: np.random.Generator, reach: float, floor_z: float) -> None:
+def place_other_robot(body: RobotBody | None, rng: np.random.Generator, reach: float, floor_z: float) -> None:
     """Stand the background robot on the floor, clear of the main robot, in a random pose."""
     if body is None:
         return
@@ -99,7 +100,7 @@ def render_recording(job: RenderJob) -> int:
     try:
         body = RobotBody(client, spec, kin, self_collision=True)
         scene = SceneRandomizer(client, rng, rcfg, spec.reach, max(job.cfg["camera"]["distance"]))
-        other = _load_other_robot(client, job, rng)
+        other = load_other_robot(client, job, rng)
         proj = projection_matrix(camera)
         rays = pixel_rays(camera)
         joints, poses = np.zeros((job.num_frames, spec.num_joints)), np.zeros((job.num_frames, 7))
@@ -107,11 +108,11 @@ def render_recording(job: RenderJob) -> int:
         for i in range(job.num_frames):
             if i % job.cfg["frames_per_scene"] == 0:
                 support = scene.new_scene()
-                _place_other_robot(other, rng, spec.reach, scene.floor_z)
+                place_other_robot(other, rng, spec.reach, scene.floor_z)
                 jitter = rcfg["robot_appearance"]["color_jitter"] if rcfg["robot_appearance"]["enabled"] else 0.0
                 app = spec.appearance
-                body.set_colors(_jittered(app.default_color, rng, jitter),
-                                {k: _jittered(v, rng, jitter) for k, v in app.link_colors.items()})
+                body.set_colors(jittered_color(app.default_color, rng, jitter),
+                                {k: jittered_color(v, rng, jitter) for k, v in app.link_colors.items()})
             q = collision_free_configuration(body, support, rng)
             points = np.vstack([np.zeros((1, 3)), kin.joint_positions(q[None])[0]])
             T_base_cam = sample_camera_pose(points, camera, job.cfg["camera"], rng)

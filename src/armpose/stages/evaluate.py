@@ -88,7 +88,8 @@ def example_columns(checkpoint: Path, data_dir: Path, pred: dict, truth: dict, r
         i = int(rng.choice(idx))
         item = LabelledFrames(data_dir, truth["row"][i:i + 1])[0]
         with torch.no_grad():
-            mask = predicted_mask(model, model(item["image"][None].contiguous(memory_format=torch.channels_last))["mask_logits"][0, 0]).numpy()
+            logits = model(item["image"][None].contiguous(memory_format=torch.channels_last))["mask_logits"]
+            mask = predicted_mask(model, logits[0, 0]).numpy()
         k = truth["intrinsics"][i:i + 1]
         valid = truth["joint_valid"][i]
         cols.append({"image": (item["image"].permute(1, 2, 0).numpy() * 255).astype(np.uint8),
