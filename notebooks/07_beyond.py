@@ -63,6 +63,7 @@ from armpose.sequence import predict_sequence
 from armpose.tracking import jitter, median_error
 
 logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s", force=True)
+logging.getLogger("armpose.extrinsics").setLevel(logging.ERROR)  # "predicted type X, calibrating as Y", per image
 params = profile_params(profile) if profile else load_params()
 root = Path(root) if root else project_root()
 checkpoint = root / params["evaluate"]["models"]["transfer"]
@@ -92,7 +93,9 @@ def points_array(rows: list[dict], key: str, count: int) -> np.ndarray:
 #
 # A tripod camera looks at the robot while it moves. Its calibration file still holds the pose
 # from before someone knocked the tripod: here the true pose turned by `bump_deg` about a random
-# axis and shifted by `bump_cm` (a stale calibration). We estimate `T_cam_base` from one image,
+# axis through the camera and shifted by `bump_cm` (a stale calibration; the turn alone moves the
+# base, 2-3 m away, by another 15-25 cm in the camera frame). We know the encoders' readings, as
+# a user would; the robot's type is given, since the network confuses UR3, UR5 and UR10 often. We estimate `T_cam_base` from one image,
 # and from `evaluate.pose_pool_images` images spread over the recording (pooled in one robust
 # fit), and compare each with the truth: rotation error, translation error and ADD (the mean
 # distance between the robot's base and joints placed by the estimated and by the true pose).
@@ -130,11 +133,14 @@ table += [f"| {r['recording']} | {r['estimate']} | {r['fits']} | {r['rot_deg']:.
 display(Markdown("\n".join(table)))
 
 # %% [markdown]
-# Where the network is accurate, the recovered pose beats the stale calibration and pooling
-# frames beats a single image (each image's errors are partly independent). Where it is not
-# (the default profile's 3D errors are still 15-25 cm, see notebook 06), the recovered pose is
-# worse than a small bump: the figure below shows the robot placed by each pose on the first
-# frame, a check a user can do by eye before trusting a new calibration.
+# Read the table against the network's accuracy. The recovered pose can only be as good as the
+# predicted joints, and with the default profile's 3D errors (15-25 cm median, notebook 06) it is
+# no better than a stale calibration after a small bump: at this accuracy it helps a camera that
+# moved a lot, or one that was never calibrated, not a 5 degree knock. Pooling images of the
+# static camera helps where single images scatter (the per-image errors are partly independent),
+# but not against an error every image shares, such as a depth bias or a mirrored pose. The
+# figure shows the robot placed by each pose on the first frame: the check a user can do by eye
+# before trusting a new calibration.
 
 # %%
 fig, axes = plt.subplots(1, len(examples), figsize=(4.2 * len(examples), 3.4), squeeze=False)
@@ -197,5 +203,6 @@ plt.show()
 # %% [markdown]
 # The filters remove most of the frame-to-frame jitter while following the motion; they cannot
 # remove the network's bias (a depth error that persists over frames stays), which is why the
-# median error changes much less than the jitter. `results/metrics.json` holds the same numbers
+# median error changes much less than the jitter. On a handheld recording part of the labels' own
+# jitter is the camera's motion and its mocap noise, so the filtered track cannot reach zero. `results/metrics.json` holds the same numbers
 # over every recorded test recording (`transfer.test.sequence`), with the reduction factor.
