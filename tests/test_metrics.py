@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from armpose.metrics import confusion_matrix, error_by_distance, mask_counts, summarise
+from armpose.metrics import confusion_matrix, depth_breakdown, error_by_distance, mask_counts, summarise
 
 
 def _case():
@@ -38,6 +38,25 @@ def test_summary_values_match_hand_computation():
     assert m["pck_5px"] == pytest.approx(19 / 26)
     assert m["pck_10px"] == pytest.approx(19 / 26)
     assert len(m["per_joint_median_cm"]) == 7
+
+
+def test_depth_breakdown_separates_ray_errors_from_depth_errors():
+    truth = np.zeros((2, 3, 3))
+    truth[..., 0] = [0.1, 0.2, 0.3]
+    truth[..., 2] = 2.0
+    valid = np.ones((2, 3), bool)
+    scaled = truth * np.array([1.10, 0.95])[:, None, None]       # right rays, depth off by 10 % and 5 %
+    m = depth_breakdown(scaled, truth, valid)
+    assert m["joint_median_true_depth_cm"] == pytest.approx(0.0, abs=1e-9)
+    assert m["frame_depth_error_median_pct"] == pytest.approx(7.5)  # median of 10 and 5
+    assert m["depth_error_median_pct"] == pytest.approx(7.5)
+    sideways = truth.copy()
+    sideways[..., 0] += 0.04                                     # right depth, 4 cm sideways
+    sideways[1, 2, 0] = np.nan                                   # an invalid slot's garbage
+    valid[1, 2] = False
+    m = depth_breakdown(sideways, truth, valid)
+    assert m["joint_median_true_depth_cm"] == pytest.approx(4.0)
+    assert m["depth_error_median_pct"] == pytest.approx(0.0) and m["frame_depth_error_median_pct"] == pytest.approx(0.0)
 
 
 def test_empty_selection_gives_nan_not_an_error():

@@ -153,3 +153,41 @@ def test_mask_decision_uses_the_training_prior_threshold():
     restored = build_model({"width": 4})
     restored.load_state_dict(model.state_dict())
     assert torch.equal(restored.mask_threshold, model.mask_threshold), "the threshold travels in the checkpoint"
+
+
+def test_lifting_model_puts_joints_at_base_plus_offsets_and_trains_every_parameter():
+    torch.manual_seed(0)
+    model = build_model({"width": 8, "lift": True}).train()
+    batch = tiny_batch()
+    out = model(batch["image"])
+    assert out["joint_offsets"].shape == (4, 7, 3) and out["base_direct"].shape == (4, 3)
+    assert out["point_weights"].shape == (4, 8) and ((out["point_weights"] > 0) & (out["point_weights"] < 1)).all()
+    torch.testing.assert_close(out["joints"], out["base"][:, None] + out["joint_offsets"])
+    losses = multi_objective_loss(out, batch, {"offsets": 1.2, "direct": 0.3})
+    assert {"offsets", "direct"} <= set(losses)
+    losses["total"].backward()
+    assert [n for n, p in model.named_parameters() if p.grad is None] == []   # DDP needs every one used
+    with pytest.raises(ValueError, match="lift"):
+        multi_objective_loss(tiny_model()(batch["image"]), batch, {"offsets": 1.0})
+
+
+def test_lifting_model_config_round_trips_and_differs_from_the_direct_one():
+    lifted = build_model({"width": 8, "lift": True, "lift_prior": 0.1})
+    assert lifted.config["lift"] is True and lifted.config["lift_prior"] == 0.1
+    assert build_model(lifted.config).config == lifted.config
+    direct = tiny_model()
+    assert direct.config["lift"] is False
+    with pytest.raises(RuntimeError):
+        direct.load_state_dict(lifted.state_dict())       # a checkpoint says which head it has
+
+
+def test_heads_stay_float32_under_a_bfloat16_autocast():
+    model = tiny_model().eval()
+    x = torch.rand(2, 3, H, W)
+    with torch.inference_mode():
+        ref = model(x)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            out = model(x)
+    for k in ("joints", "base", "type_logits"):
+        assert out[k].dtype == torch.float32, k
+        torch.testing.assert_close(out[k], ref[k], rtol=0.1, atol=0.05)   # only the trunk ran in bfloat16

@@ -5,6 +5,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import torch
 
 from armpose.config import profile_params
@@ -106,3 +107,10 @@ def test_ddp_two_cpu_ranks_agree(tiny_project, tmp_path):
     assert len(results) == 2
     assert all(r["world_size"] == 2 and r["ddp_max_weight_difference"] == 0.0 for r in results), results
     assert (tmp_path / "models" / "pretrain" / "model.pt").exists()
+
+
+def test_precision_is_fp32_by_default_and_checked():
+    from armpose.train import training_precision
+    assert training_precision({}) == "fp32" and training_precision({"precision": "bf16"}) == "bf16"
+    with pytest.raises(ValueError, match="precision"):
+        training_precision({"precision": "fp16"})

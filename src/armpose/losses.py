@@ -19,6 +19,12 @@
   head's spatial softmax and a Gaussian (sigma one cell) at the true projected point, for
   the joints and the base that project inside the image. It teaches the attention maps
   where to look directly instead of through the 3D loss alone.
+- offsets (ours; weight 0 unless params set it; lifting models only): mean Euclidean distance
+  between the predicted base-relative joint offsets (``"joint_offsets"``) and the true
+  ``joints - base``, over valid joints: the metric robot shape that :mod:`armpose.lifting`
+  turns into depth.
+- direct (ours; weight 0 unless params set it; lifting models only): Euclidean distance of
+  the directly regressed base (``"base_direct"``, the lifting solve's prior) from the truth.
 
 Batch keys: ``"mask"`` (B, H, W) {0, 1} float or uint8, ``"joints"`` (B, J, 3),
 ``"joint_valid"`` (B, J) bool, ``"base"`` (B, 3), ``"robot"`` (B,) int64 class index.
@@ -34,10 +40,10 @@ import torch
 import torch.nn.functional as F
 
 PAPER_WEIGHTS = {"mask": 1.2, "joints": 1.2, "base": 1.2, "type": 0.6}
-EXTRA_WEIGHTS = {"reproj": 0.0, "heatmap": 0.0}
+EXTRA_WEIGHTS = {"reproj": 0.0, "heatmap": 0.0, "offsets": 0.0, "direct": 0.0}
 HEATMAP_SIGMA_CELLS = 1.0
 REPROJ_UNIT_PX = 100.0
-TERMS = ("mask", "joints", "base", "type", "reproj", "heatmap")
+TERMS = ("mask", "joints", "base", "type", "reproj", "heatmap", "offsets", "direct")
 
 
 def mask_loss(logits: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -136,6 +142,15 @@ def multi_objective_loss(out: dict, batch: dict, weights: dict) -> dict[str, tor
         points = torch.cat([batch["joints"], batch["base"][:, None]], 1)
         valid = torch.cat([batch["joint_valid"].bool(), torch.ones_like(batch["joint_valid"][:, :1], dtype=torch.bool)], 1)
         losses["heatmap"] = heatmap_loss(logits, points, valid, batch["intrinsics"], batch["image_size"])
+    for term, key in (("offsets", "joint_offsets"), ("direct", "base_direct")):
+        if float(w[term]) > 0 and key not in out:
+            raise ValueError(f"loss weight {term}={w[term]} needs the model output {key!r}: "
+                             f"set base.model.lift: true or the weight to 0")
+    if float(w["offsets"]) > 0:
+        losses["offsets"] = joints_loss(out["joint_offsets"], batch["joints"] - batch["base"][:, None],
+                                        batch["joint_valid"])
+    if float(w["direct"]) > 0:
+        losses["direct"] = base_loss(out["base_direct"], batch["base"])
     losses["total"] = sum(float(w[k]) * v for k, v in losses.items())
     assert torch.isfinite(losses["total"]), {k: float(v) for k, v in losses.items()}
     return losses

@@ -19,6 +19,14 @@ Definitions:
   AUC is the area under the fraction of frames with ADD <= t for t in [0, 0.1] m, divided by
   0.1 (1.0 is perfect), as NVlabs/DREAM computes it (:func:`armpose.camera_pose.add_auc`);
 - PCK@k px: the fraction of valid joints whose projected 2D error is below k pixels.
+
+Where the 3D error comes from (ours; :func:`depth_breakdown`):
+
+- joint median at true depth: the joint error left after sliding each predicted joint along
+  its own ray to the true depth, i.e. the part that 2D (ray) errors cause, cm;
+- depth error: median of ``|z_pred / z_true - 1|`` over valid joints, %;
+- frame depth error: median over frames of ``|median_j(z_pred / z_true) - 1|``, the depth
+  error that all joints of a frame share (a scale error), %.
 """
 from __future__ import annotations
 
@@ -29,7 +37,8 @@ from armpose import camera_pose
 ADD_AUC_THRESHOLD_M = 0.1
 PCK_PIXELS = (5, 10)
 SUMMARY_KEYS = ("mask_accuracy", "mask_iou", "type_accuracy", "joint_median_cm", "joint_mean_cm",
-                "base_median_cm", "base_mean_cm", "add_auc_10cm")
+                "base_median_cm", "base_mean_cm", "add_auc_10cm", "joint_median_true_depth_cm",
+                "depth_error_median_pct", "frame_depth_error_median_pct")
 
 
 def mask_counts(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -71,6 +80,23 @@ def _mean_cm(values: np.ndarray) -> float:
     return float(100 * np.mean(v)) if v.size else float("nan")
 
 
+def depth_breakdown(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> dict:
+    """Split the 3D joint error of ``pred`` against ``truth`` (N, J, 3, metres) into its ray
+    and depth parts over the ``valid`` (N, J) joints; see the module docstring."""
+    valid = np.asarray(valid, bool) & (np.asarray(pred)[..., 2] > 0) & (np.asarray(truth)[..., 2] > 0)
+    nan = float("nan")
+    if not valid.any():
+        return {"joint_median_true_depth_cm": nan, "depth_error_median_pct": nan, "frame_depth_error_median_pct": nan}
+    safe_pred = np.where(valid[..., None], pred, 1.0)
+    safe_truth = np.where(valid[..., None], truth, 1.0)
+    ratio = safe_pred[..., 2] / safe_truth[..., 2]                               # (N, J)
+    on_true_depth = safe_pred / ratio[..., None]
+    frame_ratio = np.array([np.median(r[v]) for r, v in zip(ratio, valid) if v.any()])
+    return {"joint_median_true_depth_cm": _median_cm(np.linalg.norm(on_true_depth - safe_truth, axis=-1)[valid]),
+            "depth_error_median_pct": float(100 * np.median(np.abs(ratio[valid] - 1))),
+            "frame_depth_error_median_pct": float(100 * np.median(np.abs(frame_ratio - 1)))}
+
+
 def summarise(pred: dict, truth: dict, rows: np.ndarray, pixel_scale: float = 1.0) -> dict:
     """Every metric over the frames ``rows`` (indices into the per-frame arrays).
 
@@ -99,6 +125,7 @@ def summarise(pred: dict, truth: dict, rows: np.ndarray, pixel_scale: float = 1.
         "base_median_cm": _median_cm(base_err),
         "base_mean_cm": _mean_cm(base_err),
         "add_auc_10cm": add_auc(per_frame_add),
+        **depth_breakdown(pred["joints"][rows], truth["joints"][rows], truth["joint_valid"][rows]),
     }
     for k in PCK_PIXELS:
         out[f"pck_{k}px"] = float((uv_err[valid] < k).mean()) if valid.any() else float("nan")
