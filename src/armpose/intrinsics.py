@@ -8,35 +8,19 @@ Every problem raises :class:`IntrinsicsError` naming the file, the line (for bad
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from armpose.geometry import Camera
+from armpose.io import InputFileError, read_json_input
 
 KEYS = ("width", "height", "fx", "fy", "cx", "cy")
 DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 
 
-class IntrinsicsError(ValueError):
+class IntrinsicsError(InputFileError):
     """A bad intrinsics file: ``file``, ``row`` (None for the whole file) and ``value`` say where and what."""
-
-    def __init__(self, file: Path | str, row: int | None, value, problem: str):
-        self.file, self.row, self.value, self.problem = str(file), row, value, problem
-        where = f"{file}:{row}" if row is not None else f"{file}"
-        super().__init__(f"{where}: {problem} (value: {value!r})")
-
-
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise IntrinsicsError(path, None, None, "missing file") from None
-    except json.JSONDecodeError as err:
-        raise IntrinsicsError(path, err.lineno, err.msg, "not valid JSON") from err
-    except (OSError, UnicodeDecodeError) as err:
-        raise IntrinsicsError(path, None, str(err), "not readable") from err
 
 
 def _distortion(path: Path, dist) -> np.ndarray | None:
@@ -51,7 +35,7 @@ def _distortion(path: Path, dist) -> np.ndarray | None:
 def read_intrinsics(path: Path | str) -> tuple[Camera, np.ndarray | None]:
     """The pinhole camera (pixels) and the distortion coefficients (None when absent) of ``path``."""
     path = Path(path)
-    raw = _read_json(path)
+    raw = read_json_input(path, IntrinsicsError)
     if isinstance(raw, dict) and isinstance(raw.get("camera"), dict):
         raw = raw["camera"]
     if not isinstance(raw, dict) or any(k not in raw for k in KEYS):

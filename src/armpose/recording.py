@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
 import math
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import cv2
 import numpy as np
 
 from armpose.geometry import Camera
-from armpose.io import atomic_write_json, atomic_write_text
+from armpose.io import InputFileError, atomic_write_json, atomic_write_text, read_json_input
 from armpose.robots.registry import RobotSpec, UnknownRobotError, get_robot
 
 SOURCES = ("synthetic", "recorded")
@@ -31,13 +30,8 @@ POSE_COLUMNS = ["x", "y", "z", "qx", "qy", "qz", "qw"]
 QUAT_TOLERANCE = 1e-3
 
 
-class RecordingError(ValueError):
+class RecordingError(InputFileError):
     """A bad recording: ``file``, ``row`` (None for the whole file) and ``value`` say where and what."""
-
-    def __init__(self, file: Path | str, row: int | None, value, problem: str):
-        self.file, self.row, self.value, self.problem = str(file), row, value, problem
-        where = f"{file}:{row}" if row is not None else f"{file}"
-        super().__init__(f"{where}: {problem} (value: {value!r})")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,10 +56,9 @@ def read_meta(rec_dir: Path) -> tuple[RecordingMeta, RobotSpec]:
     path = Path(rec_dir) / "recording.json"
     if not path.exists():
         raise RecordingError(path, None, None, "missing recording.json")
-    try:
-        raw = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise RecordingError(path, err.lineno, err.msg, "not valid JSON") from err
+    raw = read_json_input(path, RecordingError)
+    if not isinstance(raw, dict):
+        raise RecordingError(path, None, raw, "expected a JSON object")
     for key in ("robot", "camera", "source"):
         if key not in raw:
             raise RecordingError(path, None, sorted(raw), f"missing key {key!r}")

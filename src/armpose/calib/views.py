@@ -20,7 +20,6 @@ naming the file, the row (line number, header = 1) and the value.
 from __future__ import annotations
 
 import csv
-import json
 import logging
 from pathlib import Path
 
@@ -30,7 +29,7 @@ import numpy as np
 from armpose.calib.board import BoardSpec, detect_board
 from armpose.calib.rig import RigView
 from armpose.geometry import Camera, matrix_to_quat, pose_to_matrix
-from armpose.io import atomic_write_json, atomic_write_text
+from armpose.io import InputFileError, atomic_write_json, atomic_write_text, read_json_input
 
 log = logging.getLogger(__name__)
 
@@ -40,13 +39,8 @@ ALL_IMAGES = "*"  # board_poses.csv: one pose for every image
 QUAT_TOLERANCE = 1e-3
 
 
-class CalibInputError(ValueError):
+class CalibInputError(InputFileError):
     """Bad calibration input: ``file``, ``row`` (None for the whole file) and ``value`` say where and what."""
-
-    def __init__(self, file: Path | str, row: int | None, value, problem: str):
-        self.file, self.row, self.value, self.problem = str(file), row, value, problem
-        where = f"{file}:{row}" if row is not None else f"{file}"
-        super().__init__(f"{where}: {problem} (value: {value!r})")
 
 
 def _parse_pose(path: Path, line: int, row: list[str]) -> np.ndarray:
@@ -93,20 +87,10 @@ def read_pose_csv(path: Path) -> dict[str, np.ndarray]:
     return poses
 
 
-def _read_json(path: Path):
-    """The parsed JSON of ``path``; :class:`CalibInputError` naming the file (and line) otherwise."""
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise CalibInputError(path, None, None, "missing file") from None
-    except json.JSONDecodeError as err:
-        raise CalibInputError(path, err.lineno, err.msg, "not valid JSON") from err
-
-
 def read_board(path: Path) -> BoardSpec:
     """The board description from ``board.json``."""
     path = Path(path)
-    raw = _read_json(path)
+    raw = read_json_input(path, CalibInputError)
     try:
         return BoardSpec.from_dict(raw)
     except ValueError as err:
