@@ -8,10 +8,13 @@ Needs the labelled dataset of the current profile (``dvc repro labels``). Each v
 - ``fp32``: as in params, but float32 training steps (the reference);
 - ``bf16``: bfloat16 autocast of the trunk and mask decoder (``precision: bf16``);
 - ``lift``: the lifting head (``base.model.lift``; offsets and direct-base loss terms 1.2 and 0.3),
-  float32.
+  float32;
+- ``stride4``: keypoint heads at stride 4 instead of 8 (``base.model.keypoint_stride``), bf16.
 
 Validation is on 100 held-out frames per UR type. Writes ``results/ablations.json``: per variant
-the wall time, seconds per step and the final validation metrics, plus the machine. Runs go to
+the wall time, seconds per step and the final validation metrics, plus the machine; a run with
+other than the default 1200 steps is stored as ``<variant>@<steps>`` (an equal-time comparison
+of a slower variant), and earlier runs of the other variants are kept. Runs go to
 a temporary directory; nothing in ``models/`` is touched.
 """
 from __future__ import annotations
@@ -31,10 +34,12 @@ from armpose.config import project_root
 from armpose.io import atomic_write_json
 from armpose.train import train
 
+DEFAULT_STEPS = 1200
 VARIANTS = {
     "fp32": {"cfg": {"precision": "fp32"}},
     "bf16": {"cfg": {"precision": "bf16"}},
     "lift": {"cfg": {"precision": "fp32"}, "model": {"lift": True}, "loss_weights": {"offsets": 1.2, "direct": 0.3}},
+    "stride4": {"cfg": {"precision": "bf16"}, "model": {"keypoint_stride": 4}},
 }
 
 
@@ -51,24 +56,27 @@ def variant_config(params: dict, name: str, steps: int) -> tuple[dict, dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--steps", type=int, default=1200)
+    ap.add_argument("--steps", type=int, default=DEFAULT_STEPS)
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     root = project_root()
     params = yaml.safe_load((root / "params.yaml").read_text())
-    results = {}
+    out_path = root / "results" / "ablations.json"
+    previous = json.loads(out_path.read_text()) if out_path.exists() else {}
+    results = dict(previous.get("variants", {}))   # other variants' earlier runs are kept
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.variants:
             cfg, base = variant_config(params, name, args.steps)
             res = train("pretrain", cfg, base, root / "data" / "labels", Path(tmp) / name)
-            results[name] = {k: res[k] for k in ("steps", "wall_s", "s_per_step", "val_joint_cm", "val_base_cm",
+            key = name if args.steps == DEFAULT_STEPS else f"{name}@{args.steps}"
+            results[key] = {k: res[k] for k in ("steps", "wall_s", "s_per_step", "val_joint_cm", "val_base_cm",
                                                  "val_type_acc", "val_mask_acc")}
-            print(name, json.dumps(results[name]))
-    out = {"steps": args.steps, "variants": results, "machine": platform.processor() or platform.machine(),
+            print(key, json.dumps(results[key]))
+    out = {"steps": DEFAULT_STEPS, "variants": results, "machine": platform.processor() or platform.machine(),
            "cpu_count": os.cpu_count(), "frames_per_robot": params["render"]["frames_per_robot"]}
-    atomic_write_json(root / "results" / "ablations.json", out)
-    print(f"wrote {root / 'results' / 'ablations.json'}")
+    atomic_write_json(out_path, out)
+    print(f"wrote {out_path}")
 
 
 if __name__ == "__main__":

@@ -191,3 +191,29 @@ def test_heads_stay_float32_under_a_bfloat16_autocast():
     for k in ("joints", "base", "type_logits"):
         assert out[k].dtype == torch.float32, k
         torch.testing.assert_close(out[k], ref[k], rtol=0.1, atol=0.05)   # only the trunk ran in bfloat16
+
+
+def test_stride4_keypoint_heads_read_c1_and_give_finer_attention_maps():
+    torch.manual_seed(0)
+    fine, coarse = build_model({"width": 8, "keypoint_stride": 4}).eval(), tiny_model().eval()
+    x = torch.rand(2, 3, H, W)
+    with torch.inference_mode():
+        out_fine, out_coarse = fine(x), coarse(x)
+        feats = fine.trunk_features(x)
+        from_cache = fine(features=feats)
+    assert out_fine["joints_attention"].shape[-2:] == (H // 4, W // 4)
+    assert out_coarse["joints_attention"].shape[-2:] == (H // 8, W // 8)
+    assert len(feats) == 4 and len(coarse.trunk_features(x)) == 3
+    torch.testing.assert_close(from_cache["joints"], out_fine["joints"])
+    assert fine.config["keypoint_stride"] == 4 and build_model(fine.config).config == fine.config
+    with pytest.raises(ValueError, match="c1"):
+        fine(features=feats[1:])
+    with pytest.raises(ValueError, match="keypoint_stride"):
+        build_model({"width": 8, "keypoint_stride": 2})
+
+
+def test_stride8_checkpoints_keep_their_parameter_names():
+    names = set(tiny_model().state_dict())
+    assert not any(".neck.fine." in n for n in names)
+    assert {n for n in build_model({"width": 8, "keypoint_stride": 4}).state_dict()} - names == {
+        n for n in build_model({"width": 8, "keypoint_stride": 4}).state_dict() if ".neck.fine." in n}

@@ -20,6 +20,7 @@ Architecture (``width`` = w, 32 by default; strides relative to the input)::
     mask_decoder  FPN: 1x1 laterals of c1..c4 to w channels, top-down bilinear upsample + add,
                   separable 3x3 at stride 4, 1x1 to one logit, bilinear upsample to (H, W)
     heads.neck    1x1 laterals of c2, c3, c4 to 2w channels, summed at stride 8, + x/y CoordConv
+                  (``keypoint_stride: 4``: c1's lateral too, summed at stride 4)
       .joints     KeypointHead(K=max_joints)  \
       .base       KeypointHead(K=1)            } read trunk features only, never the decoder
       .robot_type [avg+max pool of c4, joint-attention-pooled features] -> MLP -> num_types logits
@@ -75,6 +76,7 @@ from torch import nn
 from armpose.lifting import solve_base
 
 GROUPS: tuple[str, ...] = ("trunk.early", "trunk.late", "mask_decoder", "heads")
+KEYPOINT_STRIDES = (4, 8)
 
 # half field of view, tan(theta/2), of the pipeline's 256x212 input: 480x360, fx=fy=525 scaled
 # by 212/360 and cropped to 256 wide gives fx=309.2, so 128/309.2 and 106/309.2
@@ -265,15 +267,30 @@ class TypeHead(nn.Module):
 
 
 class KeypointNeck(nn.Module):
-    """Stride-8 features for the keypoint heads: 1x1 laterals of c2, c3, c4 summed (FPN-style)."""
+    """Features for the keypoint heads: 1x1 laterals of c2, c3, c4 summed (FPN-style) at
+    stride 8, or with ``stride=4`` also c1's lateral, summed at c1's stride 4."""
 
-    def __init__(self, w: int, cout: int):
+    def __init__(self, w: int, cout: int, stride: int = 8):
         super().__init__()
+        if stride not in KEYPOINT_STRIDES:
+            raise ValueError(f"keypoint_stride must be one of {KEYPOINT_STRIDES}, got {stride}")
+        self.stride = stride
         self.lateral = nn.ModuleList(conv_bn_relu(c, cout, 1, relu=False) for c in (2 * w, 4 * w, 8 * w))
+        if stride == 4:
+            self.fine = conv_bn_relu(w, cout, 1, relu=False)
 
-    def forward(self, c2: torch.Tensor, c3: torch.Tensor, c4: torch.Tensor) -> torch.Tensor:
-        size = c2.shape[-2:]
-        x = self.lateral[0](c2) + _resize(self.lateral[1](c3), size) + _resize(self.lateral[2](c4), size)
+    def forward(self, feats: list[torch.Tensor]) -> torch.Tensor:
+        """``feats`` = ``[c1, c2, c3, c4]``; ``[c2, c3, c4]`` is enough at stride 8."""
+        c2, c3, c4 = feats[-3:]
+        if self.stride == 4:
+            if len(feats) < 4:
+                raise ValueError("a stride-4 keypoint neck needs the trunk's c1: pass [c1, c2, c3, c4]")
+            size = feats[-4].shape[-2:]
+            x = self.fine(feats[-4]) + _resize(self.lateral[0](c2), size)
+        else:
+            size = c2.shape[-2:]
+            x = self.lateral[0](c2)
+        x = x + _resize(self.lateral[1](c3), size) + _resize(self.lateral[2](c4), size)
         return F.relu(x, inplace=True)
 
 
@@ -281,8 +298,8 @@ class Heads(nn.Module):
     """The regression and classification branches; they read trunk features only.
 
     Outputs ``joints``, ``base``, ``type_logits`` and the keypoint heads' attention logits
-    ``joints_attention`` (B, K, H/8, W/8) and ``base_attention`` (B, 1, H/8, W/8), which a
-    heatmap loss can supervise (:func:`armpose.losses.heatmap_loss`).
+    ``joints_attention`` (B, K, H/s, W/s) and ``base_attention`` (B, 1, H/s, W/s), with s the
+    keypoint stride (8, or 4), which a heatmap loss can supervise (:func:`armpose.losses.heatmap_loss`).
 
     With ``lift`` the joints head also gives each joint's offset from the base (metres,
     camera axes) and every point a confidence; :func:`armpose.lifting.solve_base` puts the
@@ -291,18 +308,18 @@ class Heads(nn.Module):
     ``joint_offsets`` (B, K, 3), ``base_direct`` (B, 3) and ``point_weights`` (B, K + 1)."""
 
     def __init__(self, w: int, num_types: int, max_joints: int, half_fov_tan, depth: float,
-                 lift: bool = False, lift_prior: float = 0.05):
+                 lift: bool = False, lift_prior: float = 0.05, keypoint_stride: int = 8):
         super().__init__()
         self.lift, self.lift_prior = lift, lift_prior
-        self.neck = KeypointNeck(w, 2 * w)
+        self.neck = KeypointNeck(w, 2 * w, keypoint_stride)
         self.joints = KeypointHead(2 * w + 2, max_joints, 2 * w, half_fov_tan, None if lift else depth,
                                    extra=4 if lift else 0)
         self.base = KeypointHead(2 * w + 2, 1, w, half_fov_tan, depth, extra=1 if lift else 0)
         self.robot_type = TypeHead(8 * w, 4 * w, num_types, cin_points=2 * w)
 
     def forward(self, feats: list[torch.Tensor]) -> dict[str, torch.Tensor]:
-        c2, c3, c4 = feats[-3], feats[-2], feats[-1]
-        x = self.neck(c2, c3, c4)
+        c4 = feats[-1]
+        x = self.neck(feats)
         coords = coord_channels(x)
         x = torch.cat([x, coords.expand(x.shape[0], -1, -1, -1)], 1)
         joints, base = self.joints(x, coords), self.base(x, coords)
@@ -326,16 +343,17 @@ class ArmPoseNet(nn.Module):
 
     def __init__(self, num_types: int = 5, max_joints: int = 7, width: int = 32,
                  half_fov_tan=DEFAULT_HALF_FOV_TAN, depth: float = DEFAULT_DEPTH, lift: bool = False,
-                 lift_prior: float = 0.05):
+                 lift_prior: float = 0.05, keypoint_stride: int = 8):
         super().__init__()
         if width < 2 or width % 2:
             raise ValueError(f"width must be an even number >= 2, got {width}")
         self.config = {"num_types": num_types, "max_joints": max_joints, "width": width,
                        "half_fov_tan": [float(t) for t in half_fov_tan], "depth": float(depth),
-                       "lift": bool(lift), "lift_prior": float(lift_prior)}
+                       "lift": bool(lift), "lift_prior": float(lift_prior),
+                       "keypoint_stride": int(keypoint_stride)}
         self.trunk = Trunk(width)
         self.mask_decoder = MaskDecoder(width)
-        self.heads = Heads(width, num_types, max_joints, half_fov_tan, depth, lift, lift_prior)
+        self.heads = Heads(width, num_types, max_joints, half_fov_tan, depth, lift, lift_prior, keypoint_stride)
 
     def forward(self, image: torch.Tensor | None = None, *,
                 features: list[torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
@@ -366,8 +384,10 @@ class ArmPoseNet(nn.Module):
 
     @torch.no_grad()
     def trunk_features(self, image: torch.Tensor) -> list[torch.Tensor]:
-        """``[c2, c3, c4]`` of the trunk for ``image``, without gradients: what the heads read."""
-        return self.trunk(normalise(image))[1:]
+        """The trunk's features that the heads read, for ``image``, without gradients:
+        ``[c2, c3, c4]``, with c1 first for a stride-4 keypoint neck."""
+        feats = self.trunk(normalise(image))
+        return feats if self.heads.neck.stride == 4 else feats[1:]
 
     def train(self, mode: bool = True) -> "ArmPoseNet":
         super().train(mode)
@@ -390,7 +410,7 @@ def normalise(image: torch.Tensor) -> torch.Tensor:
 def build_model(cfg: dict | None = None) -> ArmPoseNet:
     """An :class:`ArmPoseNet` from a plain config dict; missing keys take the defaults."""
     cfg = dict(cfg or {})
-    known = {"num_types", "max_joints", "width", "half_fov_tan", "depth", "lift", "lift_prior"}
+    known = {"num_types", "max_joints", "width", "half_fov_tan", "depth", "lift", "lift_prior", "keypoint_stride"}
     unknown = set(cfg) - known
     if unknown:
         raise ValueError(f"unknown model config keys {sorted(unknown)}; known: {sorted(known)}")
