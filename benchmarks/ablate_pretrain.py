@@ -9,7 +9,10 @@ Needs the labelled dataset of the current profile (``dvc repro labels``). Each v
 - ``bf16``: bfloat16 autocast of the trunk and mask decoder (``precision: bf16``);
 - ``lift``: the lifting head (``base.model.lift``; offsets and direct-base loss terms 1.2 and 0.3),
   float32;
-- ``stride4``: keypoint heads at stride 4 instead of 8 (``base.model.keypoint_stride``), bf16.
+- ``stride4``: keypoint heads at stride 4 instead of 8 (``base.model.keypoint_stride``), bf16;
+- ``heatmap2``: heatmap loss weight 2.0 instead of params' 0.5, bf16;
+- ``skeleton``: every keypoint's depth MLP also sees all joints' attention centres, the 2D
+  skeleton (``base.model.skeleton_context``), bf16.
 
 Validation is on 100 held-out frames per UR type. Writes ``results/ablations.json``: per variant
 the wall time, seconds per step and the final validation metrics, plus the machine; a run with
@@ -40,6 +43,8 @@ VARIANTS = {
     "bf16": {"cfg": {"precision": "bf16"}},
     "lift": {"cfg": {"precision": "fp32"}, "model": {"lift": True}, "loss_weights": {"offsets": 1.2, "direct": 0.3}},
     "stride4": {"cfg": {"precision": "bf16"}, "model": {"keypoint_stride": 4}},
+    "heatmap2": {"cfg": {"precision": "bf16"}, "loss_weights": {"heatmap": 2.0}},
+    "skeleton": {"cfg": {"precision": "bf16"}, "model": {"skeleton_context": True}},
 }
 
 

@@ -217,3 +217,19 @@ def test_stride8_checkpoints_keep_their_parameter_names():
     assert not any(".neck.fine." in n for n in names)
     assert {n for n in build_model({"width": 8, "keypoint_stride": 4}).state_dict()} - names == {
         n for n in build_model({"width": 8, "keypoint_stride": 4}).state_dict() if ".neck.fine." in n}
+
+
+def test_skeleton_context_feeds_every_joints_image_position_to_each_depth():
+    torch.manual_seed(0)
+    model = build_model({"width": 8, "skeleton_context": True})
+    assert model.heads.joints.mlp[0].weight.shape[1] == model.heads.joints.mlp[0].weight.shape[2] * 2 + 2 + 14
+    assert build_model(model.config).config == model.config and model.config["skeleton_context"]
+    batch = tiny_batch()
+    out = model.train()(batch["image"])
+    multi_objective_loss(out, batch, {})["total"].backward()
+    for name, p in model.named_parameters():
+        assert p.grad is not None, name
+    # the last MLP layer starts at zero: an untrained head still sits at the depth prior
+    with torch.inference_mode():
+        fresh = build_model({"width": 8, "skeleton_context": True}).eval()(batch["image"])
+    torch.testing.assert_close(fresh["joints"][..., 2], torch.full((4, 7), 2.5))

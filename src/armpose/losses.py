@@ -98,7 +98,7 @@ def heatmap_loss(logits: torch.Tensor, points: torch.Tensor, valid: torch.Tensor
     """Mean cross-entropy between ``logits`` (B, K, h, w) spatial softmaxes and Gaussians at
     the projections of ``points`` (B, K, 3) (camera frame, metres), over points that are
     ``valid`` and project inside the image. Grid cell centres use the align_corners=False
-    convention of :func:`armpose.model.coord_channels`; pixel centres are OpenCV's."""
+    convention of :func:`armpose.layers.coord_channels`; pixel centres are OpenCV's."""
     b, k, h, w = logits.shape
     pts = torch.where(valid[..., None], points, torch.ones_like(points))
     uv = project(pts, intrinsics)                                            # (B, K, 2) pixels

@@ -29,19 +29,8 @@ Every conv is conv-BN(-ReLU); BasicBlock is ResNet's (two 3x3, projection shortc
 shape changes); "/2" is stride 2. At w=32: about 0.3 GMAC per 212x256 frame, 1.9 M parameters.
 Run it in ``channels_last`` memory format on CPU: faster at batch 1 (1.1-3x in our runs).
 
-A :class:`KeypointHead` makes one spatial softmax ("attention") map per point. The map's
-expected image position (u, v) in [-1, 1] and the attention-pooled features, with the
-global mean feature, go through a small per-point MLP giving an offset (du, dv) and a
-log-depth t. The point is back-projected through a learned pinhole::
-
-    z = exp(log_z0 + t)          (log_z0 starts at log 2.5 m; t is soft-clamped to +-3)
-    x = z * (u + du) * tan_x,    y = z * (v + dv) * tan_y
-
-where ``tan_x, tan_y`` (learned, per head) start at the half field of view of the pipeline's
-network input (scale-and-crop of a 480x360, fx=525 camera to 256x212). The last MLP
-layer starts at zero, so an untrained head predicts points on the ray through its
-attention centre at 2.5 m. Only 3D labels are needed; the maps learn where to look from
-the 3D loss (integral / soft-argmax regression).
+The keypoint heads (:mod:`armpose.keypoints`) give each point an image ray from a spatial
+softmax and a depth from a small per-point MLP.
 
 Lifting (``lift: true`` in the model config). Regressing each joint's depth directly leaves
 a depth error common to the whole robot (8 % median on our renders, against 6 cm of joint
@@ -73,29 +62,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from armpose.keypoints import DEFAULT_DEPTH, DEFAULT_HALF_FOV_TAN, KeypointHead, KeypointNeck
+from armpose.layers import conv_bn_relu, coord_channels, resize as _resize, separable
 from armpose.lifting import solve_base
 
 GROUPS: tuple[str, ...] = ("trunk.early", "trunk.late", "mask_decoder", "heads")
-KEYPOINT_STRIDES = (4, 8)
-
-# half field of view, tan(theta/2), of the pipeline's 256x212 input: 480x360, fx=fy=525 scaled
-# by 212/360 and cropped to 256 wide gives fx=309.2, so 128/309.2 and 106/309.2
-DEFAULT_HALF_FOV_TAN = (0.414, 0.343)
-DEFAULT_DEPTH = 2.5
-
-
-def conv_bn_relu(cin: int, cout: int, k: int = 3, stride: int = 1, relu: bool = True,
-                 groups: int = 1) -> nn.Sequential:
-    layers: list[nn.Module] = [nn.Conv2d(cin, cout, k, stride, k // 2, groups=groups, bias=False),
-                               nn.BatchNorm2d(cout)]
-    if relu:
-        layers.append(nn.ReLU(inplace=True))
-    return nn.Sequential(*layers)
-
-
-def separable(cin: int, cout: int, relu: bool = True) -> nn.Sequential:
-    """Depthwise 3x3 conv-BN-ReLU then pointwise 1x1 conv-BN(-ReLU): a cheap 3x3."""
-    return nn.Sequential(conv_bn_relu(cin, cin, 3, groups=cin), conv_bn_relu(cin, cout, 1, relu=relu))
 
 
 class SeparableBlock(nn.Module):
@@ -162,10 +133,6 @@ class Trunk(nn.Module):
         return [c1, c2, c3, c4]
 
 
-def _resize(x: torch.Tensor, size) -> torch.Tensor:
-    return F.interpolate(x, size=size, mode="bilinear", align_corners=False)
-
-
 class MaskDecoder(nn.Module):
     """Light FPN: laterals to ``w`` channels, top-down sum, one 3x3 conv at stride 4, one logit.
 
@@ -188,71 +155,6 @@ class MaskDecoder(nn.Module):
         return _resize(self.predict(self.smooth(p)), size)
 
 
-def coord_channels(like: torch.Tensor) -> torch.Tensor:
-    """``(1, 2, h, w)`` x and y of each cell centre in [-1, 1] (align_corners=False convention)."""
-    h, w = like.shape[-2:]
-    ys = (torch.arange(h, device=like.device, dtype=like.dtype) * 2 + 1) / h - 1
-    xs = (torch.arange(w, device=like.device, dtype=like.dtype) * 2 + 1) / w - 1
-    gy, gx = torch.meshgrid(ys, xs, indexing="ij")
-    return torch.stack([gx, gy])[None]
-
-
-class PerSlotLinear(nn.Module):
-    """A separate linear layer for each of K slots: ``(B, K, cin) -> (B, K, cout)``."""
-
-    def __init__(self, k: int, cin: int, cout: int):
-        super().__init__()
-        bound = 1 / math.sqrt(cin)
-        self.weight = nn.Parameter(torch.empty(k, cin, cout).uniform_(-bound, bound))
-        self.bias = nn.Parameter(torch.empty(k, cout).uniform_(-bound, bound))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.einsum("bkc,kco->bko", x, self.weight) + self.bias
-
-
-class KeypointHead(nn.Module):
-    """K 3D points from a stride-8 feature map: spatial softmax, soft-argmax, log-depth, pinhole.
-
-    With ``depth=None`` the head regresses no depth: it gives rays only (the lifting head's
-    joints, whose depth comes from :func:`armpose.lifting.solve_base`). ``extra`` more outputs
-    per point (raw MLP outputs, zero at initialisation) are returned for the lifting head:
-    the base-relative offset and the confidence of each point."""
-
-    def __init__(self, cin: int, k: int, hidden: int, half_fov_tan=DEFAULT_HALF_FOV_TAN,
-                 depth: float | None = DEFAULT_DEPTH, extra: int = 0):
-        super().__init__()
-        self.k, self.has_depth = k, depth is not None
-        self.features = conv_bn_relu(cin, hidden, 1)   # the trunk already gives wide context
-        self.attention = nn.Conv2d(hidden, k, 1)
-        self.mlp = nn.Sequential(PerSlotLinear(k, 2 * hidden + 2, hidden), nn.ReLU(inplace=True),
-                                 PerSlotLinear(k, hidden, 2 + int(self.has_depth) + extra))
-        nn.init.zeros_(self.mlp[-1].weight)
-        nn.init.zeros_(self.mlp[-1].bias)
-        if self.has_depth:
-            self.log_depth = nn.Parameter(torch.tensor(math.log(depth)))
-        self.half_fov_tan = nn.Parameter(torch.tensor([float(t) for t in half_fov_tan]))
-
-    def forward(self, x: torch.Tensor, coords: torch.Tensor) -> dict[str, torch.Tensor]:
-        """``rays`` (B, K, 2) normalised image coordinates (x/z, y/z) of the points, ``points``
-        (B, K, 3) in the camera frame (metres; only with a depth), ``extra`` (B, K, extra),
-        ``attention`` (B, K, h, w) logits and ``pooled`` (B, C), the attention-pooled
-        features averaged over the K points (robot-centred)."""
-        f = self.features(x)                                               # (B, C, h, w)
-        logits = self.attention(f)                                         # (B, K, h, w)
-        attn = logits.flatten(2).softmax(-1)                               # (B, K, hw)
-        uv = attn @ coords.flatten(2).transpose(1, 2)                      # (B, K, 2)
-        pooled = attn @ f.flatten(2).transpose(1, 2)                       # (B, K, C)
-        glob = f.mean((2, 3))[:, None].expand(-1, self.k, -1)             # (B, K, C)
-        out = self.mlp(torch.cat([pooled, glob, uv], -1))                  # (B, K, 2 [+ 1] + extra)
-        rays = (uv + out[..., :2]) * self.half_fov_tan
-        result = {"rays": rays, "extra": out[..., 2 + int(self.has_depth):], "attention": logits,
-                  "pooled": pooled.mean(1)}
-        if self.has_depth:
-            z = torch.exp(self.log_depth + 3 * torch.tanh(out[..., 2] / 3))[..., None]
-            result["points"] = torch.cat([z * rays, z], -1)
-        return result
-
-
 class TypeHead(nn.Module):
     """Robot type from global c4 statistics (avg + max) and robot-centred keypoint features."""
 
@@ -264,34 +166,6 @@ class TypeHead(nn.Module):
     def forward(self, c4: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
         parts = [c4.mean((2, 3)), c4.amax((2, 3))] + ([points] if points is not None else [])
         return self.mlp(torch.cat(parts, 1))
-
-
-class KeypointNeck(nn.Module):
-    """Features for the keypoint heads: 1x1 laterals of c2, c3, c4 summed (FPN-style) at
-    stride 8, or with ``stride=4`` also c1's lateral, summed at c1's stride 4."""
-
-    def __init__(self, w: int, cout: int, stride: int = 8):
-        super().__init__()
-        if stride not in KEYPOINT_STRIDES:
-            raise ValueError(f"keypoint_stride must be one of {KEYPOINT_STRIDES}, got {stride}")
-        self.stride = stride
-        self.lateral = nn.ModuleList(conv_bn_relu(c, cout, 1, relu=False) for c in (2 * w, 4 * w, 8 * w))
-        if stride == 4:
-            self.fine = conv_bn_relu(w, cout, 1, relu=False)
-
-    def forward(self, feats: list[torch.Tensor]) -> torch.Tensor:
-        """``feats`` = ``[c1, c2, c3, c4]``; ``[c2, c3, c4]`` is enough at stride 8."""
-        c2, c3, c4 = feats[-3:]
-        if self.stride == 4:
-            if len(feats) < 4:
-                raise ValueError("a stride-4 keypoint neck needs the trunk's c1: pass [c1, c2, c3, c4]")
-            size = feats[-4].shape[-2:]
-            x = self.fine(feats[-4]) + _resize(self.lateral[0](c2), size)
-        else:
-            size = c2.shape[-2:]
-            x = self.lateral[0](c2)
-        x = x + _resize(self.lateral[1](c3), size) + _resize(self.lateral[2](c4), size)
-        return F.relu(x, inplace=True)
 
 
 class Heads(nn.Module):
@@ -308,13 +182,15 @@ class Heads(nn.Module):
     ``joint_offsets`` (B, K, 3), ``base_direct`` (B, 3) and ``point_weights`` (B, K + 1)."""
 
     def __init__(self, w: int, num_types: int, max_joints: int, half_fov_tan, depth: float,
-                 lift: bool = False, lift_prior: float = 0.05, keypoint_stride: int = 8):
+                 lift: bool = False, lift_prior: float = 0.05, keypoint_stride: int = 8,
+                 skeleton_context: bool = False):
         super().__init__()
-        self.lift, self.lift_prior = lift, lift_prior
+        self.lift, self.lift_prior, self.skeleton_context = lift, lift_prior, skeleton_context
+        context = 2 * max_joints if skeleton_context else 0
         self.neck = KeypointNeck(w, 2 * w, keypoint_stride)
         self.joints = KeypointHead(2 * w + 2, max_joints, 2 * w, half_fov_tan, None if lift else depth,
-                                   extra=4 if lift else 0)
-        self.base = KeypointHead(2 * w + 2, 1, w, half_fov_tan, depth, extra=1 if lift else 0)
+                                   extra=4 if lift else 0, context=context)
+        self.base = KeypointHead(2 * w + 2, 1, w, half_fov_tan, depth, extra=1 if lift else 0, context=context)
         self.robot_type = TypeHead(8 * w, 4 * w, num_types, cin_points=2 * w)
 
     def forward(self, feats: list[torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -322,7 +198,10 @@ class Heads(nn.Module):
         x = self.neck(feats)
         coords = coord_channels(x)
         x = torch.cat([x, coords.expand(x.shape[0], -1, -1, -1)], 1)
-        joints, base = self.joints(x, coords), self.base(x, coords)
+        attended = self.joints.attend(x, coords)
+        context = attended["uv"].flatten(1) if self.skeleton_context else None   # (B, 2K) the 2D skeleton
+        joints = self.joints(x, coords, context, attended)
+        base = self.base(x, coords, context)
         out = {"base": base["points"][:, 0], "type_logits": self.robot_type(c4, joints["pooled"]),
                "joints_attention": joints["attention"], "base_attention": base["attention"]}
         if not self.lift:
@@ -343,17 +222,18 @@ class ArmPoseNet(nn.Module):
 
     def __init__(self, num_types: int = 5, max_joints: int = 7, width: int = 32,
                  half_fov_tan=DEFAULT_HALF_FOV_TAN, depth: float = DEFAULT_DEPTH, lift: bool = False,
-                 lift_prior: float = 0.05, keypoint_stride: int = 8):
+                 lift_prior: float = 0.05, keypoint_stride: int = 8, skeleton_context: bool = False):
         super().__init__()
         if width < 2 or width % 2:
             raise ValueError(f"width must be an even number >= 2, got {width}")
         self.config = {"num_types": num_types, "max_joints": max_joints, "width": width,
                        "half_fov_tan": [float(t) for t in half_fov_tan], "depth": float(depth),
                        "lift": bool(lift), "lift_prior": float(lift_prior),
-                       "keypoint_stride": int(keypoint_stride)}
+                       "keypoint_stride": int(keypoint_stride), "skeleton_context": bool(skeleton_context)}
         self.trunk = Trunk(width)
         self.mask_decoder = MaskDecoder(width)
-        self.heads = Heads(width, num_types, max_joints, half_fov_tan, depth, lift, lift_prior, keypoint_stride)
+        self.heads = Heads(width, num_types, max_joints, half_fov_tan, depth, lift, lift_prior, keypoint_stride,
+                           skeleton_context)
 
     def forward(self, image: torch.Tensor | None = None, *,
                 features: list[torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
@@ -410,7 +290,8 @@ def normalise(image: torch.Tensor) -> torch.Tensor:
 def build_model(cfg: dict | None = None) -> ArmPoseNet:
     """An :class:`ArmPoseNet` from a plain config dict; missing keys take the defaults."""
     cfg = dict(cfg or {})
-    known = {"num_types", "max_joints", "width", "half_fov_tan", "depth", "lift", "lift_prior", "keypoint_stride"}
+    known = {"num_types", "max_joints", "width", "half_fov_tan", "depth", "lift", "lift_prior", "keypoint_stride",
+             "skeleton_context"}
     unknown = set(cfg) - known
     if unknown:
         raise ValueError(f"unknown model config keys {sorted(unknown)}; known: {sorted(known)}")
