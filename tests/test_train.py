@@ -48,6 +48,19 @@ def test_stage1_keeps_frozen_layers_bit_identical(tiny_project, tmp_path):
     assert {p.name: p.read_bytes() for p in stage1.glob("*.pt")} == files
 
 
+def test_stride4_heads_train_on_cached_trunk_features(tiny_project, tmp_path):
+    root, tparams = tiny_project
+    (tmp_path / "data").symlink_to(root / "data")
+    params = quick(tparams)
+    params["base"] = {**params["base"], "model": {**params["base"].get("model", {}), "keypoint_stride": 4}}
+    assert params["transfer_stage1"]["feature_cache"]
+    pretrain.run(params, tmp_path)
+    transfer_stage1.run(params, tmp_path)
+    ckpt = load_checkpoint(tmp_path / "models" / "transfer_stage1" / "model.pt")
+    assert ckpt["config"]["base"]["model"]["keypoint_stride"] == 4
+    assert any(".neck.fine." in k for k in ckpt["model"])
+
+
 SCRIPT = """
 import sys, yaml
 from armpose.stages import pretrain

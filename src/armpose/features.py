@@ -3,12 +3,15 @@
 When every trainable group sits after the trunk and the mask decoder is frozen too, the
 trunk's output for a frame never changes during the run (its BatchNorm layers are in eval
 mode). :func:`cache_trunk_features` runs the trunk once over the training frames, without
-augmentation, and :class:`CachedFeatureFrames` serves ``[c3, c4]`` with the labels, so a step
-is the heads' forward and backward only. The mask term drops out (its branch is frozen);
+augmentation, and :class:`CachedFeatureFrames` serves them (``feat0``, ``feat1``, ...: what
+:meth:`armpose.model.ArmPoseNet.trunk_features` gives, ``[c2, c3, c4]``, or ``[c1, c2, c3, c4]``
+with stride-4 keypoint heads) with the labels, so a step is the heads' forward and backward
+only; :func:`batch_features` turns a batch back into the list the model takes. The mask term drops out (its branch is frozen);
 validation still runs the whole network on images.
 
 The cache lives in memory as float16: c2, c3 and c4 are about 98,000 values per frame at
-width 32 and 256x212 (196 kB), 490 MB for the 2,500 frames of the default transfer set.
+width 32 and 256x212 (196 kB), 490 MB for the 2,500 frames of the default transfer set;
+stride-4 keypoint heads add c1 and double that.
 """
 from __future__ import annotations
 
@@ -25,6 +28,14 @@ log = logging.getLogger(__name__)
 
 TRUNK_GROUPS = ("trunk", "mask_decoder")
 CACHE_DTYPE = torch.float16  # halves the memory; the heads read it back as float32
+FEATURE_KEY = "feat"         # batch keys feat0, feat1, ...: the cached trunk features in order
+
+
+def batch_features(batch: dict) -> list[torch.Tensor]:
+    """The cached trunk features of a (collated) :class:`CachedFeatureFrames` batch, in the
+    order :meth:`armpose.model.ArmPoseNet.forward` takes them as ``features``."""
+    count = sum(1 for k in batch if k.startswith(FEATURE_KEY) and k[len(FEATURE_KEY):].isdigit())
+    return [batch[f"{FEATURE_KEY}{j}"] for j in range(count)]
 
 
 def trunk_is_frozen(trainable: list[str]) -> bool:
@@ -75,7 +86,7 @@ class CachedFeatureFrames(Dataset):
         a = self.frames.arrays
         row = int(self.frames.indices[i])
         return {
-            "c2": self.cache[0][i].float(), "c3": self.cache[1][i].float(), "c4": self.cache[2][i].float(),
+            **{f"{FEATURE_KEY}{j}": f[i].float() for j, f in enumerate(self.cache)},
             "joints": torch.from_numpy(np.array(a["joints"][row], np.float32)),
             "joint_valid": torch.from_numpy(np.array(a["joint_valid"][row], bool)),
             "base": torch.from_numpy(np.array(a["base"][row], np.float32)),

@@ -39,7 +39,7 @@ DEFAULT_DEPTH = 2.5
 
 
 class KeypointHead(nn.Module):
-    """K 3D points from a stride-8 feature map: spatial softmax, soft-argmax, log-depth, pinhole.
+    """K 3D points from a stride-8 (or stride-4) feature map: spatial softmax, soft-argmax, log-depth, pinhole.
 
     With ``depth=None`` the head regresses no depth: it gives rays only (the lifting head's
     joints, whose depth comes from :func:`armpose.lifting.solve_base`). ``extra`` more outputs

@@ -24,7 +24,7 @@ import torch
 import torch.distributed as dist
 from tqdm import tqdm
 
-from armpose.features import CachedFeatureFrames, cache_trunk_features, trunk_is_frozen
+from armpose.features import CachedFeatureFrames, batch_features, cache_trunk_features, trunk_is_frozen
 from armpose.data import (InfiniteBatches, LabelledFrames, foreground_fraction, make_loader, transfer_set,
                           validation_subset)
 from armpose.io import atomic_write_bytes
@@ -271,7 +271,7 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
             group["lr"] = lr
         batch = {k: v.to(device, non_blocking=True) for k, v in next(batches).items()}
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
-            out = model(features=[batch["c2"], batch["c3"], batch["c4"]]) if cached else model(to_channels_last(batch["image"]))
+            out = model(features=batch_features(batch)) if cached else model(to_channels_last(batch["image"]))
         losses = multi_objective_loss({k: v.float() for k, v in out.items()}, batch, weights)
         optimizer.zero_grad(set_to_none=True)
         losses["total"].backward()
