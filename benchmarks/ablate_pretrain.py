@@ -15,7 +15,7 @@ Needs the labelled dataset of the current profile (``dvc repro labels``). Each v
   skeleton (``base.model.skeleton_context``), bf16.
 
 Validation is on 100 held-out frames per UR type. Writes ``results/ablations.json``: per variant
-the wall time, seconds per step and the final validation metrics, plus the machine; a run with
+the wall time, seconds per step, the final validation metrics, the machine and the data size; a run with
 other than the default 1200 steps is stored as ``<variant>@<steps>`` (an equal-time comparison
 of a slower variant), and earlier runs of the other variants are kept. Runs go to
 a temporary directory; nothing in ``models/`` is touched.
@@ -70,16 +70,20 @@ def main() -> None:
     out_path = root / "results" / "ablations.json"
     previous = json.loads(out_path.read_text()) if out_path.exists() else {}
     results = dict(previous.get("variants", {}))   # other variants' earlier runs are kept
+    machine = {"processor": platform.processor() or platform.machine(), "cpu_count": os.cpu_count()}
+    for entry in results.values():                   # files written before runs carried their machine
+        entry.setdefault("machine", {"processor": previous.get("machine"), "cpu_count": previous.get("cpu_count")})
+        entry.setdefault("frames_per_robot", previous.get("frames_per_robot"))
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.variants:
             cfg, base = variant_config(params, name, args.steps)
             res = train("pretrain", cfg, base, root / "data" / "labels", Path(tmp) / name)
             key = name if args.steps == DEFAULT_STEPS else f"{name}@{args.steps}"
-            results[key] = {k: res[k] for k in ("steps", "wall_s", "s_per_step", "val_joint_cm", "val_base_cm",
-                                                 "val_type_acc", "val_mask_acc")}
+            results[key] = {**{k: res[k] for k in ("steps", "wall_s", "s_per_step", "val_joint_cm", "val_base_cm",
+                                                    "val_type_acc", "val_mask_acc")},
+                            "machine": machine, "frames_per_robot": params["render"]["frames_per_robot"]}
             print(key, json.dumps(results[key]))
-    out = {"steps": DEFAULT_STEPS, "variants": results, "machine": platform.processor() or platform.machine(),
-           "cpu_count": os.cpu_count(), "frames_per_robot": params["render"]["frames_per_robot"]}
+    out = {"steps": DEFAULT_STEPS, "variants": results}
     atomic_write_json(out_path, out)
     print(f"wrote {out_path}")
 
