@@ -71,9 +71,6 @@ def main() -> None:
     previous = json.loads(out_path.read_text()) if out_path.exists() else {}
     results = dict(previous.get("variants", {}))   # other variants' earlier runs are kept
     machine = {"processor": platform.processor() or platform.machine(), "cpu_count": os.cpu_count()}
-    for entry in results.values():                   # files written before runs carried their machine
-        entry.setdefault("machine", {"processor": previous.get("machine"), "cpu_count": previous.get("cpu_count")})
-        entry.setdefault("frames_per_robot", previous.get("frames_per_robot"))
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.variants:
             cfg, base = variant_config(params, name, args.steps)
