@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from armpose.augment import centred, draw_rotation, rotate_points, warp
+from armpose.augment import centred, dolly_points, draw_dolly, draw_rotation, rotate_points, warp
 
 W, H = 256, 212
 K = (309.2, 309.2, (W - 1) / 2, (H - 1) / 2)
@@ -62,3 +62,35 @@ def test_draws_are_reproducible_from_the_generator_seed():
     b = draw_rotation(np.random.default_rng([1, 2, 3]), CFG, K, W)
     c = draw_rotation(np.random.default_rng([1, 2, 4]), CFG, K, W)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_dollied_blobs_sit_where_the_moved_points_project_at_their_new_depth(seed):
+    rng = np.random.default_rng(100 + seed)
+    grid = np.array([[u, v] for u in (80, 128, 176) for v in (80, 130)], float)
+    uv = (grid + rng.uniform(-8, 8, grid.shape)).round()
+    z = rng.uniform(1.5, 3.0, 6)
+    points = np.column_stack([(uv[:, 0] - K[2]) / K[0] * z, (uv[:, 1] - K[3]) / K[1] * z, z])
+    img, mask = blob_image(project(points))
+    M = draw_rotation(rng, {"rotate_deg": 4.0, "roll_deg": 6.0}, K, W)
+    scale = draw_dolly(rng, {"dolly": 0.15})
+    assert 1 / 1.15 <= scale <= 1.15
+    out, out_mask = warp(img, mask, M, K, scale)
+    turned = rotate_points(points, M)
+    z_ref = turned[:, 2].mean()
+    moved = dolly_points(turned, scale, z_ref)
+    assert np.allclose(moved[:, 2], turned[:, 2] + z_ref * (1 / scale - 1)), "every depth moves by the dolly"
+    for p in project(moved):
+        assert np.linalg.norm(centroid_near(out, p) - p) < 0.5
+        assert out_mask[int(round(p[1])), int(round(p[0]))] == 1
+    # the robot keeps its metric size to within the stretch the module documents
+    spread = lambda q: np.linalg.norm(q - q.mean(0), axis=1).mean()
+    assert abs(spread(moved) / spread(turned) - 1) < 0.03
+
+
+def test_dolly_leaves_unused_slots_and_is_off_without_the_key():
+    assert draw_dolly(np.random.default_rng(0), CFG) is None
+    pts = np.array([[0.1, -0.2, 2.0], [0.0, 0.0, 0.0]])
+    moved = dolly_points(pts, 1.1, 2.0)
+    assert np.array_equal(moved[1], pts[1])
+    assert np.isclose(moved[0, 2], 2.0 / 1.1) and np.allclose(moved[0, :2], pts[0, :2])

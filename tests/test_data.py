@@ -104,6 +104,24 @@ def test_geometric_augmentation_moves_image_mask_and_labels_together(folder):
     assert torch.equal(b["joints"], ds[(5, 0)]["joints"]) and not torch.equal(b["joints"], ds[(5, 1)]["joints"])
 
 
+def test_dolly_moves_depth_and_image_size_together(folder):
+    """A dolly scales the robot's image about the principal point and moves its depth to
+    match: each joint's ray is scaled by s and every depth shifts by the same amount."""
+    plain = LabelledFrames(folder, np.arange(20))
+    ds = LabelledFrames(folder, np.arange(20), augment={**AUG, "dolly": 0.15}, seed=3)
+    for i in (2, 5, 9):
+        a, b = plain[i], ds[i]
+        valid = a["joint_valid"]
+        ja, jb = a["joints"][valid].double(), b["joints"][valid].double()
+        shift = jb[:, 2] - ja[:, 2]
+        assert torch.allclose(shift, shift[0].expand_as(shift), atol=1e-5)
+        scale = (ja[:, 2].mean() / jb[:, 2].mean()).item()   # s = z_ref / (z_ref + d)
+        ray_a, ray_b = ja[:, :2] / ja[:, 2:], jb[:, :2] / jb[:, 2:]
+        assert torch.allclose(ray_b, ray_a * scale, atol=1e-5)
+        assert abs(b["distance"].item() * scale - a["distance"].item()) < 1e-4
+    assert torch.equal(ds[5]["joints"], ds[(5, 0)]["joints"]) and not torch.equal(ds[5]["joints"], ds[(5, 1)]["joints"])
+
+
 def test_pickled_dataset_carries_no_memory_maps(folder):
     ds = LabelledFrames(folder, np.arange(100))
     ds[0]

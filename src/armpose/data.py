@@ -25,14 +25,14 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 from torch.utils.data.distributed import DistributedSampler
 
-from armpose.augment import GEOMETRIC_KEYS, draw_rotation, rotate_points, warp
+from armpose.augment import GEOMETRIC_KEYS, dolly_points, draw_dolly, draw_rotation, rotate_points, warp
 from armpose.labels.dataset import load_dataset
 
 log = logging.getLogger(__name__)
 
 SPLITS = {"train": 0, "test": 1}
 DEFAULT_AUGMENT = {"brightness": 0.25, "contrast": 0.25, "saturation": 0.25, "noise": 0.02,
-                   "flip": 0.0, "rotate_deg": 0.0, "roll_deg": 0.0}
+                   "flip": 0.0, "rotate_deg": 0.0, "roll_deg": 0.0, "dolly": 0.0}
 _GRAY = np.array([0.299, 0.587, 0.114], np.float32)
 
 
@@ -49,7 +49,8 @@ class LabelledFrames(Dataset):
     from [1 - x, 1 + x] for each key ``x`` given, then adds Gaussian noise of a standard
     deviation drawn from [0, ``noise``]. ``flip``, ``rotate_deg`` and ``roll_deg`` add a virtual
     turn of the camera (:mod:`armpose.augment`), which warps image and mask and rotates joints
-    and base so the labels stay exact. The draws come from a generator seeded by (``seed``,
+    and base so the labels stay exact; ``dolly`` then moves the camera along its axis (image
+    scaled, joints, base and ``distance`` moved to match, see :mod:`armpose.augment`). The draws come from a generator seeded by (``seed``,
     row, epoch); the geometric ones from a second stream, so the photometric draws do not change.
 
     The memory-mapped arrays are opened on first use in each process and never pickled, so
@@ -103,13 +104,10 @@ class LabelledFrames(Dataset):
         joints = np.array(a["joints"][row], np.float32)
         base = np.array(a["base"][row], np.float32)
         intrinsics = np.array(a["intrinsics"][row], np.float32)
-        M = (draw_rotation(np.random.default_rng([self.seed, row, epoch, 1]), self.augment, intrinsics, image.shape[1])
-             if self.augment and any(self.augment.get(k) for k in GEOMETRIC_KEYS) else None)
-        if M is not None:
-            image, mask = warp(image, mask.astype(np.uint8), M, intrinsics)
-            mask = mask > 0
-            joints = rotate_points(joints, M).astype(np.float32)
-            base = rotate_points(base, M).astype(np.float32)
+        distance = float(a["distance"][row])
+        if self.augment and any(self.augment.get(k) for k in GEOMETRIC_KEYS):
+            joints, base, image, mask, distance = self._moved(row, epoch, joints, base, image, mask, intrinsics,
+                                                              np.array(a["joint_valid"][row], bool), distance)
         if self.augment:
             img = self._augmented(image, row, int(epoch))
         else:
@@ -121,11 +119,26 @@ class LabelledFrames(Dataset):
             "joint_valid": torch.from_numpy(np.array(a["joint_valid"][row], bool)),
             "base": torch.from_numpy(base),
             "robot": torch.tensor(int(a["robot"][row]), dtype=torch.int64),
-            "distance": torch.tensor(float(a["distance"][row]), dtype=torch.float32),
+            "distance": torch.tensor(distance, dtype=torch.float32),
             "intrinsics": torch.from_numpy(intrinsics),
             "image_size": torch.tensor([image.shape[1], image.shape[0]], dtype=torch.int64),
             "index": torch.tensor(row, dtype=torch.int64),
         }
+
+    def _moved(self, row: int, epoch: int, joints, base, image, mask, intrinsics, valid, distance):
+        """Labels and pixels after the virtual camera turn and dolly drawn for (row, epoch):
+        ``(joints, base, image, mask, distance)``, the mask as bool."""
+        rng = np.random.default_rng([self.seed, row, epoch, 1])
+        M = draw_rotation(rng, self.augment, intrinsics, image.shape[1])
+        scale = draw_dolly(rng, self.augment)
+        M = np.eye(3) if M is None else M
+        image, mask = warp(image, mask.astype(np.uint8), M, intrinsics, 1.0 if scale is None else scale)
+        joints, base = rotate_points(joints, M), rotate_points(base, M)
+        if scale is not None:
+            z_ref = float(joints[valid, 2].mean()) if valid.any() else float(base[2])
+            joints, base = dolly_points(joints, scale, z_ref), dolly_points(base, scale, z_ref)
+            distance /= scale   # camera-to-robot distance, to first order
+        return joints.astype(np.float32), base.astype(np.float32), image, mask > 0, distance
 
     def _augmented(self, image: np.ndarray, row: int, epoch: int) -> torch.Tensor:
         """Photometric jitter of one uint8 HWC image, as float32 CHW in [0, 1].

@@ -107,12 +107,18 @@ class KeypointNeck(nn.Module):
         if stride == 4:
             self.fine = conv_bn_relu(w, cout, 1, relu=False)
 
+    @property
+    def inputs(self) -> int:
+        """How many of the trunk's deepest features it reads: 3 (c2..c4), or 4 (c1..c4) at stride 4."""
+        return 4 if self.stride == 4 else 3
+
     def forward(self, feats: list[torch.Tensor]) -> torch.Tensor:
         """``feats`` = ``[c1, c2, c3, c4]``; ``[c2, c3, c4]`` is enough at stride 8."""
+        if len(feats) < self.inputs:
+            names = ", ".join(f"c{i}" for i in range(5 - self.inputs, 5))
+            raise ValueError(f"a stride-{self.stride} keypoint neck reads the trunk's [{names}], got {len(feats)} features")
         c2, c3, c4 = feats[-3:]
         if self.stride == 4:
-            if len(feats) < 4:
-                raise ValueError("a stride-4 keypoint neck needs the trunk's c1: pass [c1, c2, c3, c4]")
             size = feats[-4].shape[-2:]
             x = self.fine(feats[-4]) + _resize(self.lateral[0](c2), size)
         else:

@@ -267,7 +267,7 @@ class ArmPoseNet(nn.Module):
         """The trunk's features that the heads read, for ``image``, without gradients:
         ``[c2, c3, c4]``, with c1 first for a stride-4 keypoint neck."""
         feats = self.trunk(normalise(image))
-        return feats if self.heads.neck.stride == 4 else feats[1:]
+        return feats[-self.heads.neck.inputs:]
 
     def train(self, mode: bool = True) -> "ArmPoseNet":
         super().train(mode)

@@ -54,8 +54,6 @@ def frame_path(rec_dir: Path, frame: int) -> Path:
 def read_meta(rec_dir: Path) -> tuple[RecordingMeta, RobotSpec]:
     """Read and validate ``recording.json``; returns it with the robot's description."""
     path = Path(rec_dir) / "recording.json"
-    if not path.exists():
-        raise RecordingError(path, None, None, "missing recording.json")
     raw = read_json_input(path, RecordingError)
     if not isinstance(raw, dict):
         raise RecordingError(path, None, raw, "expected a JSON object")

@@ -52,3 +52,11 @@ def test_compose_mocap_pose_into_base_frame():
     out = compose_poses(rig, base_from_world(T_world_base), T_rig_cam)
     np.testing.assert_allclose(out[0, :3], [1.0, 0.0, 0.6], atol=1e-12)
     np.testing.assert_allclose(np.abs(out[0, 3:]), [0, 0, 1, 0], atol=1e-12)
+
+
+def test_load_transform_names_a_missing_or_broken_file(tmp_path):
+    with pytest.raises(ValueError, match=r"nope\.json: missing file"):
+        load_transform(tmp_path / "nope.json", "--rig-offset")
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(ValueError, match=r"bad\.json:1: not valid JSON"):
+        load_transform(tmp_path / "bad.json", "--rig-offset")

@@ -7,7 +7,6 @@ OpenCV optical frame (x right, y down, z forward).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import xml.etree.ElementTree as ET
 from decimal import Decimal, InvalidOperation
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from armpose.geometry import invert, matrix_to_quat, pose_to_matrix
+from armpose.io import read_json_input
 from armpose.recording import QUAT_TOLERANCE, RecordingError
 from armpose.robots.registry import RobotSpec
 
@@ -162,10 +162,7 @@ def load_transform(spec: str | Path, what: str, key: str | None = None) -> np.nd
         pose = parse_pose_text(text, what)
         return pose_to_matrix(pose[:3], pose[3:])
     path = Path(text)
-    try:
-        raw = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise ValueError(f"{what}: cannot read {path}: {err}") from None
+    raw = read_json_input(path)
     if isinstance(raw, dict) and key in raw:
         raw = raw[key]
     elif isinstance(raw, dict) and len(raw) == 1 and isinstance(next(iter(raw.values())), (dict, list)):
