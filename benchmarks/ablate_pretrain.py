@@ -12,7 +12,12 @@ Needs the labelled dataset of the current profile (``dvc repro labels``). Each v
 - ``stride4``: keypoint heads at stride 4 instead of 8 (``base.model.keypoint_stride``), bf16;
 - ``heatmap2``: heatmap loss weight 2.0 instead of params' 0.5, bf16;
 - ``skeleton``: every keypoint's depth MLP also sees all joints' attention centres, the 2D
-  skeleton (``base.model.skeleton_context``), bf16.
+  skeleton (``base.model.skeleton_context``), bf16;
+- ``photometric``: photometric augmentation only (no camera turn, mirror or dolly), bf16.
+
+The results stored for ``fp32``, ``bf16``, ``lift``, ``stride4``, ``heatmap2`` and ``skeleton``
+were measured when params' pretraining used photometric augmentation only (commit 8c0548a);
+params now add the camera turn, mirror and dolly, so a new run of those variants includes them.
 
 Validation is on 100 held-out frames per UR type. Writes ``results/ablations.json``: per variant
 the wall time, seconds per step, the final validation metrics, the machine and the data size; a run with
@@ -38,6 +43,7 @@ from armpose.io import atomic_write_json
 from armpose.train import train
 
 DEFAULT_STEPS = 1200
+PHOTOMETRIC = {"brightness": 0.2, "contrast": 0.2, "saturation": 0.2, "noise": 0.02}
 VARIANTS = {
     "fp32": {"cfg": {"precision": "fp32"}},
     "bf16": {"cfg": {"precision": "bf16"}},
@@ -45,6 +51,7 @@ VARIANTS = {
     "stride4": {"cfg": {"precision": "bf16"}, "model": {"keypoint_stride": 4}},
     "heatmap2": {"cfg": {"precision": "bf16"}, "loss_weights": {"heatmap": 2.0}},
     "skeleton": {"cfg": {"precision": "bf16"}, "model": {"skeleton_context": True}},
+    "photometric": {"cfg": {"precision": "bf16", "augment": PHOTOMETRIC}},
 }
 
 

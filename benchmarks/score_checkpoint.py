@@ -1,0 +1,58 @@
+"""Test-split scores of any checkpoints, for A/B comparisons of a stage's settings.
+
+    python benchmarks/score_checkpoint.py CHECKPOINT [CHECKPOINT ...] [--families UR] [--out FILE]
+
+Scores each checkpoint on the test split of ``data/labels`` with the ``evaluate`` stage's
+metrics (:func:`armpose.evaluate.evaluate_checkpoint`) and prints, per robot family and per
+robot type of those families: frames, median joint and base error (cm), type and mask accuracy.
+A pretraining checkpoint has only seen UR robots, so compare those with ``--families UR``.
+To score the checkpoint of another commit's settings, check that commit out and run its
+stage (``dvc repro pretrain``) first; the dataset must be the same for the scores to compare.
+``--out`` also writes the scores as JSON (atomically).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+import torch
+import yaml
+
+from armpose.config import project_root
+from armpose.evaluate import evaluate_checkpoint, family_of
+from armpose.io import atomic_write_json
+
+KEYS = ("frames", "joint_median_cm", "base_median_cm", "type_accuracy", "mask_accuracy")
+
+
+def scores(metrics: dict, families: list[str], robot_types: list[str]) -> dict:
+    """The :data:`KEYS` of ``metrics`` for ``families`` and their robot types."""
+    types = [t for t, f in zip(robot_types, family_of(robot_types)) if f in families]
+    pick = (lambda m: {k: m[k] for k in KEYS if k in m})
+    return {"by_family": {f: pick(metrics["by_family"][f]) for f in families if f in metrics["by_family"]},
+            "by_type": {t: pick(metrics["by_type"][t]) for t in types if t in metrics["by_type"]}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoints", nargs="+", type=Path)
+    ap.add_argument("--families", nargs="+", default=["UR", "KUKA", "Panda"])
+    ap.add_argument("--out", type=Path)
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    root = project_root()
+    base = yaml.safe_load((root / "params.yaml").read_text())["base"]
+    torch.set_num_threads(int(base.get("threads", 2)))
+    out = {}
+    for ckpt in args.checkpoints:
+        metrics, _, _ = evaluate_checkpoint(ckpt, root / "data" / "labels", base)
+        out[str(ckpt)] = scores(metrics, args.families, list(base["robot_types"]))
+        print(ckpt, json.dumps(out[str(ckpt)], indent=1))
+    if args.out:
+        atomic_write_json(args.out, out)
+
+
+if __name__ == "__main__":
+    main()
