@@ -120,6 +120,21 @@ print("trainable:", cfg["trainable"], "| init_from:", cfg["init_from"])
 print(f"batch {cfg['batch_size']}, AdamW lr {cfg['lr']} -> {cfg['lr_min']} (cosine, warm-up {cfg['warmup']}), "
       f"max {cfg['max_steps']} steps, plateau {cfg['plateau']}")
 print("loss weights:", params["base"]["loss_weights"])
+print("augmentation:", cfg["augment"])
+
+# %% [markdown]
+# ## What the network sees
+#
+# Each training frame is jittered in brightness, contrast, saturation and noise, and, with the
+# keys `flip`, `rotate_deg`, `roll_deg` and `dolly`, seen from a virtual camera that is turned,
+# mirrored and moved along its axis (`armpose.augment`): the image and mask are warped and the
+# joints and base moved to match, so the labels stay on the robot (drawn below: mask tint, base
+# square, joints along the chain). The dolly scales the robot's image by up to `dolly` and moves
+# its depth to match, giving every rendered view new pairs of apparent size and distance, the cue
+# the depth is read from. The draws depend only on the seed, the row and the epoch.
+
+# %%
+viz.augmentation_figure(root / "data" / "labels", [0, 1], cfg["augment"], seed=params["base"]["seed"], epochs=3)
 
 # %% [markdown]
 # ## Train

@@ -93,3 +93,29 @@ def test_figures_render_with_agg():
         buf = io.BytesIO()
         fig.savefig(buf, format="png")
         assert buf.getvalue()[:4] == b"\x89PNG"
+
+
+def test_augmentation_figure_shows_labels_that_follow_the_warp(tiny_project):
+    """On real renders: after a camera turn, mirror and dolly, the projected joints still sit
+    on the (warped) robot mask, and the figure holds the stored frame plus one per epoch."""
+    import cv2
+    from armpose.data import LabelledFrames
+
+    root, _ = tiny_project
+    data = root / "data" / "labels"
+    augment = {"flip": 0.5, "rotate_deg": 5.0, "roll_deg": 8.0, "dolly": 0.15}
+    rows = [0, 5]
+    images, titles = viz.augmented_samples(data, rows, augment, seed=1, epochs=2)
+    assert len(images) == len(titles) == 6 and "as stored" in titles[0] and "epoch 1" in titles[2]
+    ds = LabelledFrames(data, np.arange(12), augment=augment, seed=1)
+    on_robot = []
+    for row in range(12):
+        for epoch in range(2):
+            item = ds[(row, epoch)]
+            mask = cv2.dilate(item["mask"].numpy().astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+            uv = viz.project(item["joints"].numpy()[item["joint_valid"].numpy()], item["intrinsics"].numpy())
+            h, w = mask.shape
+            inside = (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+            on_robot += list(mask[np.round(uv[inside, 1]).astype(int), np.round(uv[inside, 0]).astype(int)])
+    assert len(on_robot) > 50 and np.mean(on_robot) > 0.9
+    assert isinstance(viz.augmentation_figure(data, rows, augment, epochs=1), Figure)

@@ -85,7 +85,7 @@ def overlay_labels(image: np.ndarray, mask: np.ndarray | None, joints_uv: np.nda
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3:
         raise ValueError(f"image must be (H, W, 3), got {img.shape}")
-    out = img.astype(np.uint8, copy=True)
+    out = np.array(img, dtype=np.uint8, order="C", copy=True)   # cv2 draws on C-contiguous arrays only
     if mask is not None:
         m = np.asarray(mask).astype(bool)
         if m.shape != out.shape[:2]:
@@ -261,6 +261,36 @@ def label_samples_figure(arrays: dict, index: dict, per_robot: int = 3, seed: in
     """A grid of labelled frames, one row per robot type (see :func:`label_samples`)."""
     images, titles = label_samples(arrays, index, per_robot, seed, split)
     return sample_grid(images, titles, ncols=per_robot, cell_inches=3.0)
+
+
+def augmented_samples(data_dir: Path, rows: Sequence[int], augment: dict, seed: int = 0,
+                      epochs: int = 3) -> tuple[list[np.ndarray], list[str]]:
+    """Each dataset row in ``rows`` as stored, then as the training loader gives it in
+    ``epochs`` epochs with ``augment`` (a stage's ``augment`` section), with mask, joints
+    and base drawn on (:func:`overlay_labels`): the labels must sit on the robot in every
+    draw. Titles give the row, the epoch and the camera-to-robot ``distance`` (metres)."""
+    from armpose.data import LabelledFrames   # torch, only for this figure
+
+    plain = LabelledFrames(Path(data_dir), np.asarray(rows, np.int64))
+    moved = LabelledFrames(Path(data_dir), np.asarray(rows, np.int64), augment=augment, seed=seed)
+    images, titles = [], []
+    for i, row in enumerate(rows):
+        for epoch in range(-1, epochs):
+            item = plain[i] if epoch < 0 else moved[(i, epoch)]
+            image = (item["image"].numpy().transpose(1, 2, 0) * 255).round().astype(np.uint8)
+            intr = item["intrinsics"].numpy()
+            images.append(overlay_labels(image, item["mask"].numpy(), project(item["joints"].numpy(), intr),
+                                         project(item["base"].numpy(), intr), item["joint_valid"].numpy()))
+            what = "as stored" if epoch < 0 else f"epoch {epoch}"
+            titles.append(f"row {int(row)}, {what}\nd={float(item['distance']):.2f} m")
+    return images, titles
+
+
+def augmentation_figure(data_dir: Path, rows: Sequence[int], augment: dict, seed: int = 0,
+                        epochs: int = 3) -> Figure:
+    """A grid of :func:`augmented_samples`: one row per dataset row, the stored frame first."""
+    images, titles = augmented_samples(data_dir, rows, augment, seed, epochs)
+    return sample_grid(images, titles, ncols=epochs + 1, cell_inches=2.6)
 
 
 def mask_area_fraction(masks: np.ndarray, chunk: int = 512) -> np.ndarray:
