@@ -15,7 +15,7 @@ depth of its joints) moved to ``z_ref + d``, the image scales about the principa
 ``s = z_ref / (z_ref + d)``; that scaling is exact for points at ``z_ref`` only, so the labels
 are made consistent with the scaled image instead: each point keeps its image ray scaled
 by ``s`` and gets depth ``z + d``. The labelled robot is thereby stretched across the
-optical axis by ``s (z + d) / z``, a factor within about 1-2 % of one for a robot
+optical axis by ``s (z + d) / z``, a factor within about 4 % of one for a robot
 0.5 m deep at 1.2-3.5 m and ``|s - 1| <= 0.15``; the background is treated as if at
 ``z_ref`` too (no parallax).
 
@@ -110,5 +110,4 @@ def dolly_points(points: np.ndarray, scale: float, z_ref: float) -> np.ndarray:
     d = float(z_ref) * (1.0 / float(scale) - 1.0)
     front = z > 1e-6
     lateral = np.where(front, float(scale) * (z + d) / np.where(front, z, 1.0), 1.0)
-    out = np.concatenate([p[..., :2] * lateral, np.where(front, z + d, z)], -1)
-    return out
+    return np.concatenate([p[..., :2] * lateral, np.where(front, z + d, z)], -1)

@@ -50,8 +50,9 @@ class LabelledFrames(Dataset):
     deviation drawn from [0, ``noise``]. ``flip``, ``rotate_deg`` and ``roll_deg`` add a virtual
     turn of the camera (:mod:`armpose.augment`), which warps image and mask and rotates joints
     and base so the labels stay exact; ``dolly`` then moves the camera along its axis (image
-    scaled, joints, base and ``distance`` moved to match, see :mod:`armpose.augment`). The draws come from a generator seeded by (``seed``,
-    row, epoch); the geometric ones from a second stream, so the photometric draws do not change.
+    scaled, joints, base and ``distance`` moved to match, see :mod:`armpose.augment`). The
+    draws come from a generator seeded by (``seed``, row, epoch); the geometric ones from a
+    second stream, so the photometric draws do not change.
 
     The memory-mapped arrays are opened on first use in each process and never pickled, so
     the dataset is safe in ``DataLoader`` workers started by fork or spawn.
@@ -104,10 +105,11 @@ class LabelledFrames(Dataset):
         joints = np.array(a["joints"][row], np.float32)
         base = np.array(a["base"][row], np.float32)
         intrinsics = np.array(a["intrinsics"][row], np.float32)
+        valid = np.array(a["joint_valid"][row], bool)
         distance = float(a["distance"][row])
         if self.augment and any(self.augment.get(k) for k in GEOMETRIC_KEYS):
             joints, base, image, mask, distance = self._moved(row, epoch, joints, base, image, mask, intrinsics,
-                                                              np.array(a["joint_valid"][row], bool), distance)
+                                                              valid, distance)
         if self.augment:
             img = self._augmented(image, row, int(epoch))
         else:
@@ -116,7 +118,7 @@ class LabelledFrames(Dataset):
             "image": img,
             "mask": torch.from_numpy(mask).float(),
             "joints": torch.from_numpy(joints),
-            "joint_valid": torch.from_numpy(np.array(a["joint_valid"][row], bool)),
+            "joint_valid": torch.from_numpy(valid),
             "base": torch.from_numpy(base),
             "robot": torch.tensor(int(a["robot"][row]), dtype=torch.int64),
             "distance": torch.tensor(distance, dtype=torch.float32),
