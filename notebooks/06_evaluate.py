@@ -110,6 +110,22 @@ print("\n".join([" " * 7 + " ".join(f"{t:>6}" for t in conf["labels"])]
                 + [f"{t:>6} " + " ".join(f"{n:>6}" for n in row) for t, row in zip(conf["labels"], conf["matrix"])]))
 
 # %% [markdown]
+# ## The mirror test
+#
+# With `evaluate.mirror_test`, the transfer model also sees every test image mirrored, in the
+# same batch; the mirrored estimates are mapped back and averaged with the direct ones
+# (`armpose.mirror_test`, `armpose predict --mirror`). The training stages mirror half their
+# images, so the network knows mirrored robots; where its two answers disagree, their mean is
+# closer to the truth. It costs a second image in every forward pass (`latency.mirror_test`
+# times it). The main table above is the single pass.
+
+# %%
+if "mirror_test" in metrics["transfer"]["test"]:
+    display(Markdown("\n".join(report.mirror_section(metrics["transfer"]["test"]["by_family"],
+                                                     metrics["transfer"]["test"]["mirror_test"],
+                                                     metrics.get("latency", {})))))
+
+# %% [markdown]
 # ## Synthetic test frames and recorded test recordings, apart
 #
 # `by_source` in `metrics.json`: the synthetic test frames and the recorded test recordings per

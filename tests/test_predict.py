@@ -28,17 +28,17 @@ class BlobOracle(nn.Module):
         self.net, self.z, self.k, self.n, self.slots = net, z, type_index, num_types, slots
 
     def forward(self, x):
-        gray = x.float().mean(1)[0]
-        w = gray.clamp(min=0)
-        ys, xs = torch.meshgrid(torch.arange(gray.shape[0], dtype=torch.float64),
-                                torch.arange(gray.shape[1], dtype=torch.float64), indexing="ij")
-        s = w.double().sum()
-        u, v = float((w * xs).sum() / s), float((w * ys).sum() / s)
-        p = torch.tensor([(u - self.net.cx) / self.net.fx * self.z, (v - self.net.cy) / self.net.fy * self.z, self.z])
-        logits = torch.full((1, self.n), -5.0)
-        logits[0, self.k] = 5.0
-        return {"joints": p.expand(1, self.slots, 3).clone(), "base": p[None].clone(), "type_logits": logits,
-                "mask_logits": (gray > 0.5).float()[None, None] * 20 - 10}
+        gray = x.float().mean(1)                                               # (B, H, W)
+        w = gray.clamp(min=0).double()
+        s = w.sum((1, 2))
+        u = (w.sum(1) * torch.arange(gray.shape[2], dtype=torch.float64)).sum(1) / s
+        v = (w.sum(2) * torch.arange(gray.shape[1], dtype=torch.float64)).sum(1) / s
+        p = torch.stack([(u - self.net.cx) / self.net.fx * self.z, (v - self.net.cy) / self.net.fy * self.z,
+                         torch.full_like(u, self.z)], -1)
+        logits = torch.full((x.shape[0], self.n), -5.0)
+        logits[:, self.k] = 5.0
+        return {"joints": p[:, None].expand(-1, self.slots, 3).clone(), "base": p.clone(), "type_logits": logits,
+                "mask_logits": (gray > 0.5).float()[:, None] * 20 - 10}
 
 
 def blob_image(cam: Camera, point: np.ndarray, radius_px: float = 5.0) -> np.ndarray:
@@ -93,6 +93,18 @@ def test_warp_round_trip_with_an_oracle_is_within_one_pixel(setup):
         np.testing.assert_allclose(other["joints_xyz"][0], canon["joints_xyz"][0], atol=0.01 * p[2])
 
 
+def test_mirror_test_keeps_an_exact_oracle_exact_through_the_warp(setup):
+    tmp, base, ckpt = setup
+    (tmp / "mirror").mkdir()
+    (tmp / "other.json").write_text(json.dumps(OTHER.to_dict()))
+    for i, p in enumerate(POINTS):
+        _write_png(tmp / "mirror" / f"{i}.png", blob_image(OTHER, p))
+        row = predict([tmp / "mirror" / f"{i}.png"], ckpt, tmp / "other.json",
+                      model=BlobOracle(network_camera(base), float(p[2]), 0), mirror=True)[0]
+        assert np.abs(np.asarray(row["joints_uv"][0]) - OTHER.project(p)).max() < 1.0
+        np.testing.assert_allclose(row["base_xyz"], p, atol=0.01 * p[2])
+
+
 def test_a_point_outside_the_canonical_view_is_padded_not_lost(setup):
     tmp, base, ckpt = setup
     wide = Camera(320, 240, 150.0, 150.0, 159.5, 119.5)          # wider field of view: scaled up and cropped
@@ -115,7 +127,7 @@ def test_cli_writes_jsonl_in_the_schema_and_reports_bad_files(setup, capsys):
     _write_png(folder / "small.png", np.zeros((10, 12, 3), np.uint8))
     out, masks, overlays = tmp / "preds.jsonl", tmp / "masks", tmp / "overlays"
     rc = predict_main(["--checkpoint", str(ckpt), "--out", str(out), "--masks", str(masks), "--overlays",
-                       str(overlays), str(folder), str(tmp / "missing.png")])
+                       str(overlays), "--mirror", str(folder), str(tmp / "missing.png")])
     err = capsys.readouterr().err
     assert rc == 1
     assert "broken.png" in err and "not a readable image" in err

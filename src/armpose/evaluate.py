@@ -18,6 +18,7 @@ from tqdm import tqdm
 from armpose.data import LabelledFrames, split_indices
 from armpose.labels.dataset import SOURCE_CODES, load_dataset
 from armpose.metrics import confusion_matrix, mask_counts, summarise
+from armpose.mirror_test import forward_with_mirror
 from armpose.model import build_model, predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint, to_channels_last
@@ -36,28 +37,31 @@ def load_model(checkpoint: Path, device: torch.device | str = "cpu"):
 
 @torch.no_grad()
 def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 32,
-                  device: torch.device | str = "cpu", rows: np.ndarray | None = None) -> tuple[dict, dict]:
+                  device: torch.device | str = "cpu", rows: np.ndarray | None = None,
+                  mirror: bool = False) -> tuple[dict, dict]:
     """``(pred, truth)`` dicts of per-frame numpy arrays over ``rows`` (default: every frame of
     ``split``). ``pred``: joints, base, type, type_probs, mask_counts; ``truth``: joints,
-    joint_valid, base, type, intrinsics, distance, source, recording, row."""
+    joint_valid, base, type, intrinsics, distance, source, recording, row. With ``mirror``,
+    ``pred["mirror"]`` holds the same keys for the mirror test (:mod:`armpose.mirror_test`),
+    from the same forward passes."""
     arrays, _ = load_dataset(Path(data_dir))
     rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
     frames = LabelledFrames(Path(data_dir), rows)
-    joints, base, probs, counts = [], [], [], []
+    single, averaged = _Collected(), _Collected()
     for start in tqdm(range(0, len(frames), batch_size), desc="evaluate", unit="batch", dynamic_ncols=True):
         items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
-        images = to_channels_last(torch.stack([it["image"] for it in items]).to(device))
-        out = model(images)
-        joints.append(out["joints"].float().cpu().numpy())
-        base.append(out["base"].float().cpu().numpy())
-        probs.append(out["type_logits"].float().softmax(-1).cpu().numpy())
-        pred_mask = predicted_mask(model, out["mask_logits"][:, 0]).cpu().numpy()
-        counts.append(mask_counts(pred_mask, torch.stack([it["mask"] for it in items]).numpy() > 0.5))
-    cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
-    type_probs = cat(probs, (0, 0))
-    pred = {"joints": cat(joints, (0, 0, 3)), "base": cat(base, (0, 3)), "type_probs": type_probs,
-            "type": type_probs.argmax(1) if len(type_probs) else np.zeros(0, np.int64),
-            "mask_counts": cat(counts, (0, 4))}
+        images = torch.stack([it["image"] for it in items]).to(device)
+        masks = torch.stack([it["mask"] for it in items]).numpy() > 0.5
+        if mirror:
+            intrinsics = torch.stack([it["intrinsics"] for it in items]).to(device)
+            out, mean = forward_with_mirror(model, images, intrinsics[:, 0], intrinsics[:, 2])
+            averaged.add(model, mean, masks)
+        else:
+            out = model(to_channels_last(images))
+        single.add(model, out, masks)
+    pred = single.arrays()
+    if mirror:
+        pred["mirror"] = averaged.arrays()
     truth = {"joints": np.asarray(arrays["joints"][rows], np.float64),
              "joint_valid": np.asarray(arrays["joint_valid"][rows], bool),
              "base": np.asarray(arrays["base"][rows], np.float64),
@@ -68,6 +72,26 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
              "recording": np.asarray(arrays["recording"][rows], np.int64),
              "row": rows}
     return pred, truth
+
+
+class _Collected:
+    """Per-batch network outputs gathered into the per-frame arrays of :func:`predict_split`."""
+
+    def __init__(self):
+        self.joints, self.base, self.probs, self.counts = [], [], [], []
+
+    def add(self, model, out: dict, masks: np.ndarray) -> None:
+        self.joints.append(out["joints"].float().cpu().numpy())
+        self.base.append(out["base"].float().cpu().numpy())
+        self.probs.append(out["type_logits"].float().softmax(-1).cpu().numpy())
+        self.counts.append(mask_counts(predicted_mask(model, out["mask_logits"][:, 0]).cpu().numpy(), masks))
+
+    def arrays(self) -> dict:
+        cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
+        type_probs = cat(self.probs, (0, 0))
+        return {"joints": cat(self.joints, (0, 0, 3)), "base": cat(self.base, (0, 3)), "type_probs": type_probs,
+                "type": type_probs.argmax(1) if len(type_probs) else np.zeros(0, np.int64),
+                "mask_counts": cat(self.counts, (0, 4))}
 
 
 def family_of(robot_types: list[str]) -> list[str]:
@@ -104,11 +128,16 @@ def pixel_scale_of(base: dict) -> float:
 
 
 def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str = "test",
-                        batch_size: int = 32, device: str = "cpu") -> tuple[dict, dict, dict]:
-    """``(metrics, pred, truth)`` of one checkpoint on ``split``."""
+                        batch_size: int = 32, device: str = "cpu", mirror: bool = False) -> tuple[dict, dict, dict]:
+    """``(metrics, pred, truth)`` of one checkpoint on ``split``; with ``mirror``, also
+    ``metrics["mirror_test"]``: the ``all`` and ``by_family`` metrics of the mirror test
+    (:mod:`armpose.mirror_test`), and ``pred["mirror"]`` its predictions."""
     model, _ = load_model(checkpoint, device)
-    pred, truth = predict_split(model, data_dir, split, batch_size, device)
+    pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror)
     metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base))
+    if mirror:
+        both = metrics_by_group(pred["mirror"], truth, list(base["robot_types"]), pixel_scale_of(base))
+        metrics["mirror_test"] = {"all": both["all"], "by_family": both["by_family"]}
     log.info("%s on %s: %s", checkpoint, split, {k: metrics["by_family"][k].get("joint_median_cm")
                                                  for k in metrics["by_family"]})
     return metrics, pred, truth

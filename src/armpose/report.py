@@ -70,6 +70,7 @@ def results_table(metrics: Mapping, data_note: str) -> str:
         vals += [f"{fv.get('joint_median_cm', float('nan')):.2f}", f"{100 * fv.get('type_accuracy', float('nan')):.1f}"]
         out.append(f"| {f} | " + " | ".join(vals) + " |")
     out += depth_section(ours)
+    out += mirror_section(ours, metrics["transfer"]["test"].get("mirror_test", {}), metrics.get("latency", {}))
     out += source_section(metrics["transfer"]["test"].get("by_source", {}))
     out += camera_pose_section(metrics["transfer"]["test"].get("camera_pose", {}))
     out += sequence_section(metrics["transfer"]["test"].get("sequence", {}))
@@ -110,6 +111,28 @@ def depth_section(ours: dict) -> list[str]:
     for f in rows:
         m = ours[f]
         out.append(f"| {f} | {m[keys[0]]:.2f} | {m[keys[1]]:.2f} | {m[keys[2]]:.1f} | {m[keys[3]]:.1f} |")
+    return out
+
+
+def mirror_section(ours: Mapping, mirror: Mapping, latency: Mapping) -> list[str]:
+    """Markdown lines: the single pass (the table above) against the mirror test (armpose.mirror_test)."""
+    fams = [f for f in ours if f in mirror.get("by_family", {})]
+    if not fams:
+        return []
+    cpu = latency.get("cpu", {})
+    cost = (f" Latency at batch 1 on this CPU: {cpu['batch1_median_ms']:.1f} ms single, "
+            f"{cpu['mirror_batch1_median_ms']:.1f} ms with the mirror." if "mirror_batch1_median_ms" in cpu else "")
+    out = ["", "## Mirror test (two-stage transfer)", "",
+           "`armpose predict --mirror`: the image and its horizontal mirror in one batch, the mirrored "
+           "outputs mapped back and averaged (`armpose.mirror_test`). The table above is the single pass." + cost, "",
+           "| Family | joint median cm, single / mirror | base median cm, single / mirror | "
+           "type acc %, single / mirror | mask acc %, single / mirror |", "|---|---:|---:|---:|---:|"]
+    for f in fams:
+        a, b = ours[f], mirror["by_family"][f]
+        out.append(f"| {f} | {a['joint_median_cm']:.2f} / {b['joint_median_cm']:.2f} | "
+                   f"{a['base_median_cm']:.2f} / {b['base_median_cm']:.2f} | "
+                   f"{100 * a['type_accuracy']:.1f} / {100 * b['type_accuracy']:.1f} | "
+                   f"{100 * a['mask_accuracy']:.1f} / {100 * b['mask_accuracy']:.1f} |")
     return out
 
 

@@ -158,7 +158,8 @@ def run(params: dict, root: Path | None = None) -> dict:
     data_dir, res = root / "data" / "labels", root / RESULTS
     metrics, preds = {}, {}
     for name, ckpt in cfg["models"].items():
-        m, pred, truth = evaluate_checkpoint(root / ckpt, data_dir, base, "test", int(cfg["batch_size"]))
+        m, pred, truth = evaluate_checkpoint(root / ckpt, data_dir, base, "test", int(cfg["batch_size"]),
+                                             mirror=bool(cfg.get("mirror_test", False)) and name == "transfer")
         metrics[name] = {"checkpoint": ckpt, "test": m}
         preds[name] = (pred, truth)
     for name, pred_truth in preds.items():

@@ -1,7 +1,9 @@
 """Stage ``latency``: forward time per frame of the trained network (paper: 19-23 ms, GTX 1080 Ti).
 
 Batch 1: the median and 95th percentile over ``frames`` timed forwards after ``warmup``
-untimed ones; batch ``batch``: frames per second. On CPU with ``threads`` torch threads,
+untimed ones; batch ``batch``: frames per second; with ``mirror_test``, also batch 1 with
+the mirror test (``armpose predict --mirror``: each image with its mirror, one forward).
+On CPU with ``threads`` torch threads,
 and on CUDA as well when a GPU is present. Inputs are test images from ``data/labels`` at
 the network's 256x212 input. Writes ``results/latency.json``; ``benchmarks/bench_inference.py``
 is the same function from the command line.
@@ -23,6 +25,7 @@ from armpose.data import LabelledFrames, split_indices
 from armpose.evaluate import load_model
 from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
+from armpose.mirror_test import forward_with_mirror
 
 log = logging.getLogger(__name__)
 OUTPUT = Path("results/latency.json")
@@ -33,20 +36,29 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-@torch.no_grad()
-def time_device(model, images: torch.Tensor, device: torch.device, frames: int, warmup: int, batch: int) -> dict:
-    """Batch-1 latency (ms) and batch-``batch`` throughput (frames/s) of ``model`` on ``device``."""
-    model = model.to(device)
-    imgs = images.to(device).contiguous(memory_format=torch.channels_last)
+def _batch1_times(forward, imgs: torch.Tensor, device: torch.device, frames: int, warmup: int) -> list[float]:
+    """Milliseconds of ``forward`` on each of ``frames`` single images, after ``warmup`` untimed calls."""
     for i in range(warmup):
-        model(imgs[i % len(imgs)][None])
+        forward(imgs[i % len(imgs)][None])
     _sync(device)
     times = []
     for i in range(frames):
         t = time.perf_counter()
-        model(imgs[i % len(imgs)][None])
+        forward(imgs[i % len(imgs)][None])
         _sync(device)
         times.append(1000 * (time.perf_counter() - t))
+    return times
+
+
+@torch.no_grad()
+def time_device(model, images: torch.Tensor, device: torch.device, frames: int, warmup: int, batch: int,
+                mirror_camera: tuple[float, float] | None = None) -> dict:
+    """Batch-1 latency (ms) and batch-``batch`` throughput (frames/s) of ``model`` on ``device``;
+    with ``mirror_camera`` (the network camera's fx, cx in pixels), also the batch-1 latency of
+    the mirror test (:func:`armpose.mirror_test.forward_with_mirror`, two images a forward)."""
+    model = model.to(device)
+    imgs = images.to(device).contiguous(memory_format=torch.channels_last)
+    times = _batch1_times(model, imgs, device, frames, warmup)
     big = imgs[np.arange(batch) % len(imgs)]
     model(big)
     _sync(device)
@@ -56,8 +68,13 @@ def time_device(model, images: torch.Tensor, device: torch.device, frames: int, 
         model(big)
     _sync(device)
     fps = reps * batch / (time.perf_counter() - t)
-    return {"batch1_median_ms": round(float(np.median(times)), 3), "batch1_p95_ms": round(float(np.percentile(times, 95)), 3),
-            "batch1_frames": frames, f"batch{batch}_fps": round(fps, 2)}
+    out = {"batch1_median_ms": round(float(np.median(times)), 3), "batch1_p95_ms": round(float(np.percentile(times, 95)), 3),
+           "batch1_frames": frames, f"batch{batch}_fps": round(fps, 2)}
+    if mirror_camera is not None:
+        mirrored = _batch1_times(lambda x: forward_with_mirror(model, x, *mirror_camera), imgs, device, frames, warmup)
+        out.update(mirror_batch1_median_ms=round(float(np.median(mirrored)), 3),
+                   mirror_batch1_p95_ms=round(float(np.percentile(mirrored, 95)), 3))
+    return out
 
 
 def run(params: dict, root: Path | None = None) -> dict:
@@ -71,16 +88,18 @@ def run(params: dict, root: Path | None = None) -> dict:
     rows = split_indices(arrays, "test")[: int(cfg["images"])]
     frames = LabelledFrames(data, rows)
     images = torch.stack([frames[i]["image"] for i in range(len(frames))])
+    fx, _, cx, _ = (float(v) for v in frames[0]["intrinsics"])
+    mirror = (fx, cx) if cfg.get("mirror_test", False) else None
     result = {"checkpoint": cfg["checkpoint"], "input": f"{images.shape[-1]}x{images.shape[-2]}",
               "paper_ms": [19, 23], "paper_device": "GTX 1080 Ti", "target_cpu_median_ms": 15.0,
               "cpu": {"threads": int(cfg["threads"]), "processor": platform.processor() or platform.machine(),
                       "cpu_count": os.cpu_count(),
                       **time_device(model, images, torch.device("cpu"), int(cfg["frames"]), int(cfg["warmup"]),
-                                    int(cfg["batch"]))}}
+                                    int(cfg["batch"]), mirror)}}
     if torch.cuda.is_available():
         result["cuda"] = {"device": torch.cuda.get_device_name(0),
                           **time_device(model, images, torch.device("cuda"), int(cfg["frames"]), int(cfg["warmup"]),
-                                        int(cfg["batch"]))}
+                                        int(cfg["batch"]), mirror)}
     atomic_write_json(root / OUTPUT, result)
     return result
 
@@ -96,8 +115,10 @@ def main(argv: list[str] | None = None) -> None:
         if dev in res:
             r = res[dev]
             fps = {k: v for k, v in r.items() if k.endswith("_fps")}
+            mirror = (f"; mirror test, batch 1: median {r['mirror_batch1_median_ms']:.1f} ms"
+                      if "mirror_batch1_median_ms" in r else "")
             print(f"latency {dev}: batch 1 median {r['batch1_median_ms']:.1f} ms, p95 {r['batch1_p95_ms']:.1f} ms; "
-                  + ", ".join(f"{k[:-4]} {v:.0f} frames/s" for k, v in fps.items()))
+                  + ", ".join(f"{k[:-4]} {v:.0f} frames/s" for k, v in fps.items()) + mirror)
     print(f"latency: wrote {Path(args.root or project_root()) / OUTPUT}")
 
 
