@@ -41,8 +41,12 @@ def test_dvc_repro_runs_every_stage_and_then_does_nothing(tmp_path, tiny_params)
     assert test["camera_pose"]["tripod"]["all"]["images_10"]["estimates"] == 1   # 4 frames: one pooled estimate
     assert test["camera_pose"]["tripod"]["all"]["images_1"]["frames"] == 4
     assert test["sequence"]["all"]["recordings"] == 2 and "jitter_reduction" in test["sequence"]["all"]["kalman"]
+    assert test["mirror_test"]["all"]["frames"] == test["all"]["frames"]             # evaluate.mirror_test
+    latency = json.loads((work / "results" / "latency.json").read_text())["cpu"]
+    assert latency["mirror_batch1_median_ms"] > 0                                   # latency.mirror_test
     table = (work / "results" / "results_table.md").read_text()
     assert "| recorded | Panda | 8 |" in table and "Jitter reduction" in table and "| tripod | 10 |" in table
+    assert "## Mirror test" in table
     before = {p.name: p.read_bytes() for p in (work / "data" / "labels").glob("*.npy")}
     out = _sh("dvc repro labels", work)
     assert "didn't change" in out or "up to date" in out, out
