@@ -32,3 +32,25 @@ def test_table_has_both_columns_bold_wins_and_lists_shortfalls():
     assert "UR joint position error" in short and "KUKA mask accuracy" in short
     assert "KUKA joint" not in short and "UR mask" not in short
     assert "9.5 ms" in text and "held-out synthetic renders" in text and "10.0x faster" in text
+
+
+def test_git_hash_marks_uncommitted_code_or_params_but_not_pipeline_outputs(tmp_path):
+    import subprocess
+    from armpose.report import git_hash
+    assert git_hash(tmp_path) == "unknown"
+    run = (lambda *a: subprocess.run(["git", *a], cwd=tmp_path, check=True, capture_output=True))
+    run("init", "-q")
+    run("config", "user.email", "t@t")
+    run("config", "user.name", "t")
+    (tmp_path / "results").mkdir()
+    for name in ("params.yaml", "dvc.lock", "results/metrics.json"):
+        (tmp_path / name).write_text("a\n")
+    run("add", "-A")
+    run("commit", "-qm", "x")
+    head = run("rev-parse", "HEAD").stdout.decode().strip()
+    (tmp_path / "dvc.lock").write_text("b\n")
+    (tmp_path / "results" / "metrics.json").write_text("b\n")
+    (tmp_path / "untracked.txt").write_text("b\n")
+    assert git_hash(tmp_path) == head
+    (tmp_path / "params.yaml").write_text("b\n")
+    assert git_hash(tmp_path) == head + "-dirty"

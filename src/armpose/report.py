@@ -208,11 +208,17 @@ def sequence_section(seq: Mapping) -> list[str]:
 
 
 def git_hash(root: Path) -> str:
+    """The commit checked out at ``root``, with ``-dirty`` appended when tracked files other than
+    the pipeline's own outputs (``dvc.lock``, ``results/``) differ from it: code or params that
+    no commit holds. ``unknown`` outside a git checkout."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
     try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
-                              check=True).stdout.strip()
+        head = git("rev-parse", "HEAD")
+        changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":!dvc.lock", ":!results")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
+    return head + ("-dirty" if changed else "")
 
 
 def environment(root: Path, profile_note: str) -> dict:
