@@ -119,3 +119,13 @@ def test_augmentation_figure_shows_labels_that_follow_the_warp(tiny_project):
             on_robot += list(mask[np.round(uv[inside, 1]).astype(int), np.round(uv[inside, 0]).astype(int)])
     assert len(on_robot) > 50 and np.mean(on_robot) > 0.9
     assert isinstance(viz.augmentation_figure(data, rows, augment, epochs=1), Figure)
+
+
+def test_chw_to_uint8_rounds_clips_and_moves_channels_last():
+    from armpose.viz import chw_to_uint8
+    img = np.zeros((3, 2, 4), np.float32)
+    img[0, 0, 0], img[1, 1, 3], img[2, 0, 1] = 1.0, 0.5, 1.7
+    img[0, 1, 2] = -0.2
+    out = chw_to_uint8(img)
+    assert out.shape == (2, 4, 3) and out.dtype == np.uint8
+    assert out[0, 0, 0] == 255 and out[1, 3, 1] == 128 and out[0, 1, 2] == 255 and out[1, 2, 0] == 0

@@ -60,6 +60,13 @@ def project(points_cam: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
     return uv
 
 
+def chw_to_uint8(image) -> np.ndarray:
+    """A network-input image, (3, H, W) float RGB in [0, 1] (numpy, or a CPU tensor), as the
+    (H, W, 3) uint8 RGB image the drawing functions take; rounded, values outside [0, 1] clipped."""
+    arr = np.asarray(image, dtype=np.float32).transpose(1, 2, 0)
+    return np.clip(np.rint(arr * 255), 0, 255).astype(np.uint8)
+
+
 def _pt(uv, shift: int = 4) -> tuple[int, int]:
     """A sub-pixel point for cv2 drawing functions called with ``shift``."""
     return int(round(float(uv[0]) * (1 << shift))), int(round(float(uv[1]) * (1 << shift)))
@@ -277,7 +284,7 @@ def augmented_samples(data_dir: Path, rows: Sequence[int], augment: dict, seed: 
     for i, row in enumerate(rows):
         for epoch in range(-1, epochs):
             item = plain[i] if epoch < 0 else moved[(i, epoch)]
-            image = (item["image"].numpy().transpose(1, 2, 0) * 255).round().astype(np.uint8)
+            image = chw_to_uint8(item["image"].numpy())
             intr = item["intrinsics"].numpy()
             images.append(overlay_labels(image, item["mask"].numpy(), project(item["joints"].numpy(), intr),
                                          project(item["base"].numpy(), intr), item["joint_valid"].numpy()))

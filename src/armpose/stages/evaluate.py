@@ -34,6 +34,7 @@ from armpose.model import predicted_mask
 from armpose.report import environment, results_table
 from armpose.train import load_checkpoint
 from armpose import viz_eval
+from armpose.viz import chw_to_uint8
 
 log = logging.getLogger(__name__)
 RESULTS = Path("results")
@@ -92,7 +93,7 @@ def example_columns(checkpoint: Path, data_dir: Path, pred: dict, truth: dict, r
             mask = predicted_mask(model, logits[0, 0]).numpy()
         k = truth["intrinsics"][i:i + 1]
         valid = truth["joint_valid"][i]
-        cols.append({"image": (item["image"].permute(1, 2, 0).numpy() * 255).astype(np.uint8),
+        cols.append({"image": chw_to_uint8(item["image"].numpy()),
                      "pred_uv": project(pred["joints"][i:i + 1], k)[0][valid],
                      "true_uv": project(truth["joints"][i:i + 1], k)[0][valid], "mask": mask,
                      "pred_base_uv": project(pred["base"][i:i + 1, None], k)[0, 0],
