@@ -28,12 +28,15 @@ from armpose.io import atomic_write_json
 KEYS = ("frames", "joint_median_cm", "base_median_cm", "type_accuracy", "mask_accuracy")
 
 
+def pick(group: dict, names: list[str]) -> dict:
+    """The :data:`KEYS` of each of ``names`` present in ``group`` (metrics per family or type)."""
+    return {n: {k: group[n][k] for k in KEYS if k in group[n]} for n in names if n in group}
+
+
 def scores(metrics: dict, families: list[str], robot_types: list[str]) -> dict:
     """The :data:`KEYS` of ``metrics`` for ``families`` and their robot types."""
     types = [t for t, f in zip(robot_types, family_of(robot_types)) if f in families]
-    pick = (lambda m: {k: m[k] for k in KEYS if k in m})
-    return {"by_family": {f: pick(metrics["by_family"][f]) for f in families if f in metrics["by_family"]},
-            "by_type": {t: pick(metrics["by_type"][t]) for t in types if t in metrics["by_type"]}}
+    return {"by_family": pick(metrics["by_family"], families), "by_type": pick(metrics["by_type"], types)}
 
 
 def main() -> None:
@@ -52,8 +55,7 @@ def main() -> None:
         metrics, _, _ = evaluate_checkpoint(ckpt, root / "data" / "labels", base, mirror=args.mirror)
         out[str(ckpt)] = scores(metrics, args.families, list(base["robot_types"]))
         if args.mirror:
-            out[str(ckpt)]["mirror_test"] = {f: {k: m[k] for k in KEYS if k in m}
-                                             for f, m in metrics["mirror_test"]["by_family"].items() if f in args.families}
+            out[str(ckpt)]["mirror_test"] = pick(metrics["mirror_test"]["by_family"], args.families)
         print(ckpt, json.dumps(out[str(ckpt)], indent=1))
     if args.out:
         atomic_write_json(args.out, out)
