@@ -101,17 +101,28 @@ def cosine_lr(step: int, max_steps: int, lr: float, lr_min: float, warmup: int) 
 
 class Plateau:
     """Stops when the smoothed training loss has not improved by a relative ``delta`` for
-    ``patience`` steps. State is a plain dict, saved in checkpoints."""
+    ``patience`` steps. State is a plain dict, saved in checkpoints.
+
+    The smoothing is an exponential moving average with Adam's bias correction, so an early
+    value is the weighted mean of every loss so far, not the first loss; and the best value is
+    tracked only once the average spans ``1 / (1 - ema)`` steps (50 at 0.98). Without both, one
+    low first batch set a best that the average never beat again, and a stage stopped at
+    ``patience + 1`` steps whatever its loss did next."""
 
     def __init__(self, delta: float, patience: int, ema: float = 0.98, state: dict | None = None):
         self.delta, self.patience, self.ema = delta, patience, ema
-        self.state = state or {"smooth": None, "best": None, "best_step": 0}
+        self.window = math.ceil(1.0 / (1.0 - ema))
+        self.state = state or {"average": 0.0, "count": 0, "best": None, "best_step": 0}
 
     def update(self, step: int, loss: float) -> bool:
         s = self.state
-        s["smooth"] = loss if s["smooth"] is None else self.ema * s["smooth"] + (1 - self.ema) * loss
-        if s["best"] is None or s["smooth"] < s["best"] * (1 - self.delta):
-            s["best"], s["best_step"] = s["smooth"], step
+        s["count"] += 1
+        s["average"] = self.ema * s["average"] + (1 - self.ema) * float(loss)
+        smooth = s["average"] / (1 - self.ema ** s["count"])
+        if s["count"] < self.window:
+            return False
+        if s["best"] is None or smooth < s["best"] * (1 - self.delta):
+            s["best"], s["best_step"] = smooth, step
         return step - s["best_step"] >= self.patience
 
 
@@ -248,8 +259,11 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         optimizer.load_state_dict(ckpt["optimizer"])
         step, history, elapsed = ckpt["step"], ckpt["extra"]["history"], ckpt["extra"]["elapsed"]
         finished = bool(ckpt["extra"].get("finished"))
-        if plateau and ckpt["extra"].get("plateau"):
-            plateau.state = ckpt["extra"]["plateau"]
+        saved = ckpt["extra"].get("plateau")
+        if plateau and saved and "count" in saved:
+            plateau.state = saved
+        elif plateau and saved:  # written before the bias-corrected average: start the average afresh
+            log.warning("%s: checkpoint holds an old plateau state; the plateau average restarts", stage)
     max_steps, weights = int(cfg["max_steps"]), base["loss_weights"]
 
     def checkpoint(path: Path) -> None:
