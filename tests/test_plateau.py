@@ -45,3 +45,17 @@ def test_state_round_trip_gives_the_same_stop():
     second = Plateau(0.01, 200, state=dict(first.state))
     resumed = next(step for step, loss in enumerate(losses[250:], start=251) if second.update(step, loss))
     assert resumed == whole
+
+
+def test_restore_keeps_a_current_state_and_drops_an_old_one():
+    current = Plateau(0.01, 200)
+    for step in range(1, 80):
+        current.update(step, 2.0)
+    resumed = Plateau(0.01, 200)
+    resumed.restore(dict(current.state))
+    assert resumed.state == current.state
+    fresh = Plateau(0.01, 200)
+    fresh.restore({"smooth": 1.0, "best": 1.0, "best_step": 3})   # written by the rule before the fix
+    assert fresh.state["count"] == 0 and fresh.state["best"] is None
+    fresh.restore(None)
+    assert fresh.state["count"] == 0

@@ -125,6 +125,14 @@ class Plateau:
             s["best"], s["best_step"] = smooth, step
         return step - s["best_step"] >= self.patience
 
+    def restore(self, state: dict | None) -> None:
+        """Continue from a checkpoint's saved ``state``. One written before the bias-corrected
+        average (no ``count``) is dropped with a warning, and the average restarts."""
+        if state and "count" in state:
+            self.state = state
+        elif state:
+            log.warning("checkpoint holds an old plateau state; the plateau average restarts")
+
 
 RUNTIME_KEYS = {"threads", "num_workers", "checkpoint_every", "resume"}
 
@@ -259,11 +267,8 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         optimizer.load_state_dict(ckpt["optimizer"])
         step, history, elapsed = ckpt["step"], ckpt["extra"]["history"], ckpt["extra"]["elapsed"]
         finished = bool(ckpt["extra"].get("finished"))
-        saved = ckpt["extra"].get("plateau")
-        if plateau and saved and "count" in saved:
-            plateau.state = saved
-        elif plateau and saved:  # written before the bias-corrected average: start the average afresh
-            log.warning("%s: checkpoint holds an old plateau state; the plateau average restarts", stage)
+        if plateau:
+            plateau.restore(ckpt["extra"].get("plateau"))
     max_steps, weights = int(cfg["max_steps"]), base["loss_weights"]
 
     def checkpoint(path: Path) -> None:
