@@ -121,9 +121,29 @@ print("\n".join([" " * 7 + " ".join(f"{t:>6}" for t in conf["labels"])]
 
 # %%
 if "mirror_test" in metrics["transfer"]["test"]:
-    display(Markdown("\n".join(report.mirror_section(metrics["transfer"]["test"]["by_family"],
-                                                     metrics["transfer"]["test"]["mirror_test"],
-                                                     metrics.get("latency", {})))))
+    display(Markdown("\n".join(report.option_section("mirror_test", metrics["transfer"]["test"]["by_family"],
+                                                          metrics["transfer"]["test"]["mirror_test"],
+                                                          metrics.get("latency", {})))))
+
+# %% [markdown]
+# ## The zoom test
+#
+# The robot fills a few percent of the frame, so its type and outline rest on few pixels. With
+# `evaluate.zoom_test`, the transfer model takes a second look: the frame magnified (up to
+# `evaluate.max_zoom`) about the box of the first pass's joints, the box centre moved to the
+# principal point. The second pass's joints and base are mapped back through the magnified
+# camera (depth times the magnification: the apparent size), its mask logits warped back, and
+# everything is averaged with the first pass (`armpose.zoom_test`, `armpose predict --zoom`).
+# It costs one more forward pass (`latency.zoom_test` times it). The stored test frames are
+# already at the network's 256x212, so the magnified frame has no new detail, only a larger
+# robot for the network's stride-8 maps; `armpose predict --zoom` magnifies the network input
+# in the same way.
+
+# %%
+if "zoom_test" in metrics["transfer"]["test"]:
+    display(Markdown("\n".join(report.option_section("zoom_test", metrics["transfer"]["test"]["by_family"],
+                                                          metrics["transfer"]["test"]["zoom_test"],
+                                                          metrics.get("latency", {})))))
 
 # %% [markdown]
 # ## Synthetic test frames and recorded test recordings, apart

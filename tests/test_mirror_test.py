@@ -5,7 +5,7 @@ import torch
 from torch import nn
 
 from armpose.mirror_test import forward_with_mirror, mirror_average, unmirror_points
-from armpose.report import mirror_section
+from armpose.report import option_section
 
 W, H, FX, FY, CX, CY = 64, 48, 60.0, 60.0, 33.0, 22.5     # principal point off the centre column (31.5)
 
@@ -108,9 +108,9 @@ def test_mirror_average_without_mask_logits():
 def test_report_section_lists_single_and_mirror_per_family():
     fam = {"joint_median_cm": 19.5, "base_median_cm": 17.7, "type_accuracy": 0.844, "mask_accuracy": 0.994}
     better = {**fam, "joint_median_cm": 19.1}
-    lines = mirror_section({"UR": fam}, {"by_family": {"UR": better}},
+    lines = option_section("mirror_test", {"UR": fam}, {"by_family": {"UR": better}},
                            {"cpu": {"batch1_median_ms": 8.3, "mirror_batch1_median_ms": 14.2}})
     text = "\n".join(lines)
     assert "| UR | 19.50 / 19.10 | 17.70 / 17.70 | 84.4 / 84.4 | 99.4 / 99.4 |" in text
-    assert "8.3 ms single, 14.2 ms with the mirror" in text
-    assert mirror_section({"UR": fam}, {}, {}) == []
+    assert "8.3 ms single, 14.2 ms with the mirror test" in text
+    assert option_section("mirror_test", {"UR": fam}, {}, {}) == []

@@ -21,11 +21,14 @@ SCHEMA = {"image", "robot_type", "type_probs", "base_xyz", "joints_xyz", "joints
 class BlobOracle(nn.Module):
     """Stands in for the network: finds the one bright blob in its input (intensity centroid,
     in network-input pixels), and returns every joint and the base at that pixel's ray at
-    depth ``z``; predicts robot type ``type_index``; the mask is the bright pixels."""
+    depth ``z``; predicts robot type ``type_index``; the mask is the bright pixels. With
+    ``radius_m``, the depth comes from the blob's apparent size instead, as a network's does:
+    a disc of that radius in metres, of area ``pi (fx radius_m / z)^2`` pixels."""
 
-    def __init__(self, net: Camera, z: float, type_index: int, num_types: int = 5, slots: int = 7):
+    def __init__(self, net: Camera, z: float, type_index: int, num_types: int = 5, slots: int = 7,
+                 radius_m: float | None = None):
         super().__init__()
-        self.net, self.z, self.k, self.n, self.slots = net, z, type_index, num_types, slots
+        self.net, self.z, self.k, self.n, self.slots, self.radius_m = net, z, type_index, num_types, slots, radius_m
 
     def forward(self, x):
         gray = x.float().mean(1)                                               # (B, H, W)
@@ -33,8 +36,9 @@ class BlobOracle(nn.Module):
         s = w.sum((1, 2))
         u = (w.sum(1) * torch.arange(gray.shape[2], dtype=torch.float64)).sum(1) / s
         v = (w.sum(2) * torch.arange(gray.shape[1], dtype=torch.float64)).sum(1) / s
-        p = torch.stack([(u - self.net.cx) / self.net.fx * self.z, (v - self.net.cy) / self.net.fy * self.z,
-                         torch.full_like(u, self.z)], -1)
+        z = (torch.full_like(u, self.z) if self.radius_m is None
+             else self.net.fx * self.radius_m / torch.sqrt(s / np.pi))
+        p = torch.stack([(u - self.net.cx) / self.net.fx * z, (v - self.net.cy) / self.net.fy * z, z], -1)
         logits = torch.full((x.shape[0], self.n), -5.0)
         logits[:, self.k] = 5.0
         return {"joints": p[:, None].expand(-1, self.slots, 3).clone(), "base": p.clone(), "type_logits": logits,
@@ -105,6 +109,25 @@ def test_mirror_test_keeps_an_exact_oracle_exact_through_the_warp(setup):
         np.testing.assert_allclose(row["base_xyz"], p, atol=0.01 * p[2])
 
 
+@pytest.mark.parametrize("mirror", [False, True])
+def test_zoom_test_keeps_an_exact_oracle_exact_through_the_warp(setup, mirror):
+    """The second, magnified look of ``--zoom`` maps back to the truth: an oracle that reads depth
+    from apparent size, on a user's camera, gives the true point and pixel with and without it."""
+    tmp, base, ckpt = setup
+    folder = tmp / f"zoom{int(mirror)}"
+    folder.mkdir()
+    (tmp / "other.json").write_text(json.dumps(OTHER.to_dict()))
+    radius_m = 0.1
+    for i, p in enumerate(POINTS):
+        _write_png(folder / f"{i}.png", blob_image(OTHER, p, OTHER.fx * radius_m / p[2]))
+        oracle = BlobOracle(network_camera(base), 0.0, 0, radius_m=radius_m)
+        plain, zoomed = (predict([folder / f"{i}.png"], ckpt, tmp / "other.json", model=oracle, mirror=mirror,
+                                 zoom=zoom)[0] for zoom in (False, True))
+        assert np.abs(np.asarray(zoomed["joints_uv"][0]) - OTHER.project(p)).max() < 1.0
+        np.testing.assert_allclose(zoomed["base_xyz"], p, atol=0.02 * p[2])
+        np.testing.assert_allclose(zoomed["base_xyz"], plain["base_xyz"], atol=0.01 * p[2])
+
+
 def test_a_point_outside_the_canonical_view_is_padded_not_lost(setup):
     tmp, base, ckpt = setup
     wide = Camera(320, 240, 150.0, 150.0, 159.5, 119.5)          # wider field of view: scaled up and cropped
@@ -127,7 +150,7 @@ def test_cli_writes_jsonl_in_the_schema_and_reports_bad_files(setup, capsys):
     _write_png(folder / "small.png", np.zeros((10, 12, 3), np.uint8))
     out, masks, overlays = tmp / "preds.jsonl", tmp / "masks", tmp / "overlays"
     rc = predict_main(["--checkpoint", str(ckpt), "--out", str(out), "--masks", str(masks), "--overlays",
-                       str(overlays), "--mirror", str(folder), str(tmp / "missing.png")])
+                       str(overlays), "--mirror", "--zoom", str(folder), str(tmp / "missing.png")])
     err = capsys.readouterr().err
     assert rc == 1
     assert "broken.png" in err and "not a readable image" in err

@@ -19,6 +19,7 @@ from armpose.data import LabelledFrames, split_indices
 from armpose.labels.dataset import SOURCE_CODES, load_dataset
 from armpose.metrics import confusion_matrix, mask_counts, summarise
 from armpose.mirror_test import forward_with_mirror
+from armpose.zoom_test import zoom_refine
 from armpose.model import build_model, predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint, to_channels_last
@@ -38,30 +39,35 @@ def load_model(checkpoint: Path, device: torch.device | str = "cpu"):
 @torch.no_grad()
 def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 32,
                   device: torch.device | str = "cpu", rows: np.ndarray | None = None,
-                  mirror: bool = False) -> tuple[dict, dict]:
+                  mirror: bool = False, zoom: bool = False, max_zoom: float = 1.5) -> tuple[dict, dict]:
     """``(pred, truth)`` dicts of per-frame numpy arrays over ``rows`` (default: every frame of
     ``split``). ``pred``: joints, base, type, type_probs, mask_counts; ``truth``: joints,
     joint_valid, base, type, intrinsics, distance, source, recording, row. With ``mirror``,
     ``pred["mirror"]`` holds the same keys for the mirror test (:mod:`armpose.mirror_test`),
-    from the same forward passes."""
+    from the same forward passes; with ``zoom``, ``pred["zoom"]`` those of the zoom test
+    (:mod:`armpose.zoom_test`, magnification up to ``max_zoom``: one more pass per batch)."""
     arrays, _ = load_dataset(Path(data_dir))
     rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
     frames = LabelledFrames(Path(data_dir), rows)
-    single, averaged = _Collected(), _Collected()
+    single, averaged, zoomed = _Collected(), _Collected(), _Collected()
     for start in tqdm(range(0, len(frames), batch_size), desc="evaluate", unit="batch", dynamic_ncols=True):
         items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
         images = torch.stack([it["image"] for it in items]).to(device)
         masks = torch.stack([it["mask"] for it in items]).numpy() > 0.5
+        intrinsics = torch.stack([it["intrinsics"] for it in items]).to(device)
         if mirror:
-            intrinsics = torch.stack([it["intrinsics"] for it in items]).to(device)
             out, mean = forward_with_mirror(model, images, intrinsics[:, 0], intrinsics[:, 2])
             averaged.add(model, mean, masks)
         else:
             out = model(to_channels_last(images))
         single.add(model, out, masks)
+        if zoom:
+            zoomed.add(model, zoom_refine(model, images, out, intrinsics, max_zoom), masks)
     pred = single.arrays()
     if mirror:
         pred["mirror"] = averaged.arrays()
+    if zoom:
+        pred["zoom"] = zoomed.arrays()
     truth = {"joints": np.asarray(arrays["joints"][rows], np.float64),
              "joint_valid": np.asarray(arrays["joint_valid"][rows], bool),
              "base": np.asarray(arrays["base"][rows], np.float64),
@@ -128,16 +134,21 @@ def pixel_scale_of(base: dict) -> float:
 
 
 def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str = "test",
-                        batch_size: int = 32, device: str = "cpu", mirror: bool = False) -> tuple[dict, dict, dict]:
+                        batch_size: int = 32, device: str = "cpu", mirror: bool = False,
+                        zoom: bool = False, max_zoom: float = 1.5) -> tuple[dict, dict, dict]:
     """``(metrics, pred, truth)`` of one checkpoint on ``split``; with ``mirror``, also
     ``metrics["mirror_test"]``: the ``all`` and ``by_family`` metrics of the mirror test
-    (:mod:`armpose.mirror_test`), and ``pred["mirror"]`` its predictions."""
+    (:mod:`armpose.mirror_test`), and ``pred["mirror"]`` its predictions; with ``zoom``,
+    ``metrics["zoom_test"]`` and ``pred["zoom"]`` likewise for the zoom test (:mod:`armpose.zoom_test`)."""
     model, _ = load_model(checkpoint, device)
-    pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror)
+    pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror, zoom=zoom,
+                                max_zoom=max_zoom)
     metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base))
-    if mirror:
-        both = metrics_by_group(pred["mirror"], truth, list(base["robot_types"]), pixel_scale_of(base))
-        metrics["mirror_test"] = {"all": both["all"], "by_family": both["by_family"]}
+    for key, name in (("mirror", "mirror_test"), ("zoom", "zoom_test")):
+        if key in pred:
+            both = metrics_by_group(pred[key], truth, list(base["robot_types"]), pixel_scale_of(base))
+            metrics[name] = {"all": both["all"], "by_family": both["by_family"], "by_type": both["by_type"],
+                             "confusion": both["confusion"]}
     log.info("%s on %s: %s", checkpoint, split, {k: metrics["by_family"][k].get("joint_median_cm")
                                                  for k in metrics["by_family"]})
     return metrics, pred, truth

@@ -27,6 +27,7 @@ import torch
 from armpose.geometry import Camera
 from armpose.intrinsics import load_intrinsics
 from armpose.mirror_test import forward_with_mirror
+from armpose.zoom_test import zoom_refine
 from armpose.io import atomic_write_bytes
 from armpose.model import predicted_mask
 from armpose.robots import get_robot
@@ -98,7 +99,8 @@ def read_image(path: Path) -> np.ndarray:
 class Predictor:
     """A loaded network plus its camera, robot types and joint counts."""
 
-    def __init__(self, checkpoint: Path | str, device: str = "cpu", model=None, mirror: bool = False):
+    def __init__(self, checkpoint: Path | str, device: str = "cpu", model=None, mirror: bool = False,
+                 zoom: bool = False, max_zoom: float = 1.5):
         from armpose.evaluate import load_model
         ckpt_path = Path(checkpoint)
         if model is None:
@@ -108,12 +110,16 @@ class Predictor:
                 raise PredictError(f"{ckpt_path}: cannot use this checkpoint ({err})") from err
         else:
             config = load_checkpoint(ckpt_path)["config"]
-        self.model, self.device, self.mirror = model, device, mirror
+        self.model, self.device, self.mirror, self.zoom, self.max_zoom = model, device, mirror, zoom, max_zoom
         self.base = config["base"]
         self.types = list(self.base["robot_types"])
         self.net = network_camera(self.base)
         self.canonical = Camera.from_dict(self.base["camera"])
         self.num_joints = [get_robot(t).num_joints for t in self.types]
+
+    def forward(self, x: torch.Tensor) -> dict:
+        """The network's outputs on the network-input batch ``x``, mirror-test averaged with ``mirror``."""
+        return forward_with_mirror(self.model, x, self.net.fx, self.net.cx)[1] if self.mirror else self.model(x)
 
     @torch.no_grad()
     def __call__(self, image: np.ndarray, camera: Camera | None = None) -> dict:
@@ -127,7 +133,10 @@ class Predictor:
         x = torch.from_numpy(to_network(image, warp, self.net)).permute(2, 0, 1).float().div(255)[None]
         x = x.to(self.device).contiguous(memory_format=torch.channels_last)
         t = time.perf_counter()
-        out = forward_with_mirror(self.model, x, self.net.fx, self.net.cx)[1] if self.mirror else self.model(x)
+        out = self.forward(x)
+        if self.zoom:
+            net = (self.net.fx, self.net.fy, self.net.cx, self.net.cy)
+            out = zoom_refine(self.forward, x, out, net, self.max_zoom)
         latency = 1000 * (time.perf_counter() - t)
         probs = out["type_logits"][0].float().softmax(-1).cpu().numpy()
         k = int(probs.argmax())
@@ -162,16 +171,18 @@ def write_mask(mask: np.ndarray, folder: Path, stem: str) -> Path:
 
 def predict(images: Sequence[str | Path], checkpoint: Path | str, intrinsics: Camera | str | Path | None = None,
             masks: Path | None = None, device: str = "cpu", errors: list | None = None, model=None,
-            mirror: bool = False) -> list[dict]:
+            mirror: bool = False, zoom: bool = False, max_zoom: float = 1.5) -> list[dict]:
     """One result dict per readable image (schema in the module docstring).
 
     ``intrinsics``: a :class:`Camera` or a JSON path; ``None`` means the canonical camera of the
     checkpoint's params. Files that fail are skipped with a warning; pass a list as ``errors``
     to collect their messages. ``model`` replaces the checkpoint's network (tests use an oracle).
     ``mirror``: average with the network's outputs on the mirrored image (:mod:`armpose.mirror_test`;
-    two images a forward pass, included in ``latency_ms``).
+    two images a forward pass, included in ``latency_ms``). ``zoom``: average with a second pass on
+    the network input magnified up to ``max_zoom`` about the robot (:mod:`armpose.zoom_test`; one
+    more forward pass, included in ``latency_ms``).
     """
-    predictor = Predictor(checkpoint, device, model=model, mirror=mirror)
+    predictor = Predictor(checkpoint, device, model=model, mirror=mirror, zoom=zoom, max_zoom=max_zoom)
     camera = load_intrinsics(Path(intrinsics)) if isinstance(intrinsics, (str, Path)) else intrinsics
     results = []
     for path in expand_inputs(images):

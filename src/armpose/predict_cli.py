@@ -1,7 +1,7 @@
 """Command line of ``armpose predict`` (see :mod:`armpose.predict` for the output schema).
 
     armpose predict --checkpoint PATH [--intrinsics cam.json] [--out preds.jsonl]
-                    [--masks DIR] [--overlays DIR] [--mirror] IMAGE_OR_DIR...
+                    [--masks DIR] [--overlays DIR] [--mirror] [--zoom] IMAGE_OR_DIR...
     armpose predict --sequence [--filter kalman|one-euro|none] [--rate-hz HZ]
                     [--joints JOINTS.csv --robot NAME] --checkpoint PATH [...] FRAMES_DIR_OR_VIDEO...
 
@@ -12,6 +12,9 @@ naming it; the others are still processed, and the exit status is 1 if any faile
 ``--mirror`` runs each image together with its horizontal mirror and averages the two
 estimates (:mod:`armpose.mirror_test`): two images a forward pass, for a more accurate
 estimate; ``results/results_table.md`` ("Mirror test") gives both accuracies and latencies.
+``--zoom`` takes a second look at the network input magnified (up to 1.5x) about the robot
+found by the first, and averages the two (:mod:`armpose.zoom_test`): one more forward pass;
+"Zoom test" in the results table gives its accuracy and latency. Both may be given.
 
 ``--sequence`` treats the inputs as consecutive frames (folders sorted by file name, videos
 read with OpenCV, frame k of ``clip.avi`` named ``clip.avi#k``) and smooths the 3D outputs
@@ -76,7 +79,7 @@ def run_sequence(args: argparse.Namespace, errors: list[str]) -> None:
     for row, image, mask in iter_sequence(args.inputs, args.checkpoint, args.intrinsics, args.filter or "kalman",
                                           args.rate_hz, device=args.device, joint_angles=angles, robot=args.robot,
                                           masks=Path(args.masks) if args.masks else None, errors=errors,
-                                          mirror=args.mirror):
+                                          mirror=args.mirror, zoom=args.zoom):
         line = json.dumps(row) + "\n"
         if args.out:
             lines.append(line)
@@ -100,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--overlays", default=None, help="folder for images with the predictions drawn")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--mirror", action="store_true", help="average with the mirrored image's estimate (2 images a forward)")
+    ap.add_argument("--zoom", action="store_true", help="average with a second pass on the input magnified about the robot")
     ap.add_argument("--sequence", action="store_true", help="inputs are consecutive frames (folders, videos)")
     ap.add_argument("--filter", choices=FILTERS, help="causal smoothing of --sequence (default kalman)")
     ap.add_argument("--rate-hz", type=float, help="frames per second of --sequence (default: the video's, else 30)")
@@ -125,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1 if errors else 0
     try:
         rows = predict(args.inputs, args.checkpoint, args.intrinsics, Path(args.masks) if args.masks else None,
-                       args.device, errors=errors, mirror=args.mirror)
+                       args.device, errors=errors, mirror=args.mirror, zoom=args.zoom)
     except (PredictError, IntrinsicsError) as err:
         print(f"armpose predict: {err}", file=sys.stderr)
         return 1

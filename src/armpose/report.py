@@ -70,7 +70,8 @@ def results_table(metrics: Mapping, data_note: str) -> str:
         vals += [f"{fv.get('joint_median_cm', float('nan')):.2f}", f"{100 * fv.get('type_accuracy', float('nan')):.1f}"]
         out.append(f"| {f} | " + " | ".join(vals) + " |")
     out += depth_section(ours)
-    out += mirror_section(ours, metrics["transfer"]["test"].get("mirror_test", {}), metrics.get("latency", {}))
+    for key in PASS_OPTIONS:
+        out += option_section(key, ours, metrics["transfer"]["test"].get(key, {}), metrics.get("latency", {}))
     out += source_section(metrics["transfer"]["test"].get("by_source", {}))
     out += camera_pose_section(metrics["transfer"]["test"].get("camera_pose", {}))
     out += sequence_section(metrics["transfer"]["test"].get("sequence", {}))
@@ -114,21 +115,33 @@ def depth_section(ours: dict) -> list[str]:
     return out
 
 
-def mirror_section(ours: Mapping, mirror: Mapping, latency: Mapping) -> list[str]:
-    """Markdown lines: the single pass (the table above) against the mirror test (armpose.mirror_test)."""
-    fams = [f for f in ours if f in mirror.get("by_family", {})]
+PASS_OPTIONS = {
+    "mirror_test": ("Mirror test", "mirror",
+                    "`armpose predict --mirror`: the image and its horizontal mirror in one batch, the mirrored "
+                    "outputs mapped back and averaged (`armpose.mirror_test`)."),
+    "zoom_test": ("Zoom test", "zoom",
+                  "`armpose predict --zoom`: a second pass on the image magnified (up to `evaluate.max_zoom`) "
+                  "about the box of the first pass's joints, its outputs mapped back and averaged with the "
+                  "first pass's (`armpose.zoom_test`)."),
+}
+
+
+def option_section(key: str, ours: Mapping, other: Mapping, latency: Mapping) -> list[str]:
+    """Markdown lines: the single pass (the table above) against a test-time option
+    (``key`` of :data:`PASS_OPTIONS`: the mirror or the zoom test)."""
+    fams = [f for f in ours if f in other.get("by_family", {})]
     if not fams:
         return []
+    title, short, what = PASS_OPTIONS[key]
     cpu = latency.get("cpu", {})
+    ms = f"{short}_batch1_median_ms"
     cost = (f" Latency at batch 1 on this CPU: {cpu['batch1_median_ms']:.1f} ms single, "
-            f"{cpu['mirror_batch1_median_ms']:.1f} ms with the mirror." if "mirror_batch1_median_ms" in cpu else "")
-    out = ["", "## Mirror test (two-stage transfer)", "",
-           "`armpose predict --mirror`: the image and its horizontal mirror in one batch, the mirrored "
-           "outputs mapped back and averaged (`armpose.mirror_test`). The table above is the single pass." + cost, "",
-           "| Family | joint median cm, single / mirror | base median cm, single / mirror | "
-           "type acc %, single / mirror | mask acc %, single / mirror |", "|---|---:|---:|---:|---:|"]
+            f"{cpu[ms]:.1f} ms with the {short} test." if ms in cpu else "")
+    out = ["", f"## {title} (two-stage transfer)", "", what + " The table above is the single pass." + cost, "",
+           f"| Family | joint median cm, single / {short} | base median cm, single / {short} | "
+           f"type acc %, single / {short} | mask acc %, single / {short} |", "|---|---:|---:|---:|---:|"]
     for f in fams:
-        a, b = ours[f], mirror["by_family"][f]
+        a, b = ours[f], other["by_family"][f]
         out.append(f"| {f} | {a['joint_median_cm']:.2f} / {b['joint_median_cm']:.2f} | "
                    f"{a['base_median_cm']:.2f} / {b['base_median_cm']:.2f} | "
                    f"{100 * a['type_accuracy']:.1f} / {100 * b['type_accuracy']:.1f} | "

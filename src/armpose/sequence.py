@@ -250,11 +250,11 @@ def iter_sequence(frames: Sequence[str | Path], checkpoint: Path | str, intrinsi
                   filter: str = "kalman", rate_hz: float | None = DEFAULT_RATE_HZ, model=None, device: str = "cpu",
                   joint_angles=None, robot: str | None = None, masks: Path | None = None, errors: list | None = None,
                   method: str = "huber", threshold_m: float = 0.05,
-                  mirror: bool = False) -> Iterator[tuple[dict, np.ndarray, np.ndarray]]:
+                  mirror: bool = False, zoom: bool = False) -> Iterator[tuple[dict, np.ndarray, np.ndarray]]:
     """``(row, RGB image, mask)`` per processed frame, in order, as soon as each is ready.
 
     Arguments as :func:`predict_sequence`, plus ``mirror`` (the mirror test of
-    :mod:`armpose.mirror_test` on every frame); frames that fail are skipped with a warning (and
+    :mod:`armpose.mirror_test` on every frame) and ``zoom`` (the zoom test of :mod:`armpose.zoom_test`); frames that fail are skipped with a warning (and
     their message appended to ``errors``), their time slot kept.
     """
     if filter not in FILTERS:
@@ -263,7 +263,7 @@ def iter_sequence(frames: Sequence[str | Path], checkpoint: Path | str, intrinsi
     if robot is not None:
         get_robot(robot)
     fk = _fk_for(joint_angles, robot, frames)
-    predictor = Predictor(checkpoint, device, model=model, mirror=mirror)
+    predictor = Predictor(checkpoint, device, model=model, mirror=mirror, zoom=zoom)
     camera = load_intrinsics(Path(intrinsics)) if isinstance(intrinsics, (str, Path)) else intrinsics
     tracker = _Tracker(predictor, camera or predictor.canonical, filter, rate_hz, fk, robot, method, threshold_m)
     for k, (name, image) in enumerate(iter_images(frames)):

@@ -2,8 +2,9 @@
 
 Batch 1: the median and 95th percentile over ``frames`` timed forwards after ``warmup``
 untimed ones; batch ``batch``: frames per second; with ``mirror_test``, also batch 1 with
-the mirror test (``armpose predict --mirror``: each image with its mirror, one forward).
-On CPU with ``threads`` torch threads,
+the mirror test (``armpose predict --mirror``: each image with its mirror, one forward);
+with ``zoom_test``, batch 1 with the zoom test (``armpose predict --zoom``: two forwards,
+the second on the input magnified up to ``max_zoom``). On CPU with ``threads`` torch threads,
 and on CUDA as well when a GPU is present. Inputs are test images from ``data/labels`` at
 the network's 256x212 input. Writes ``results/latency.json``; ``benchmarks/bench_inference.py``
 is the same function from the command line.
@@ -26,6 +27,7 @@ from armpose.evaluate import load_model
 from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
 from armpose.mirror_test import forward_with_mirror
+from armpose.zoom_test import forward_with_zoom
 
 log = logging.getLogger(__name__)
 OUTPUT = Path("results/latency.json")
@@ -52,10 +54,13 @@ def _batch1_times(forward, imgs: torch.Tensor, device: torch.device, frames: int
 
 @torch.no_grad()
 def time_device(model, images: torch.Tensor, device: torch.device, frames: int, warmup: int, batch: int,
-                mirror_camera: tuple[float, float] | None = None) -> dict:
+                mirror_camera: tuple[float, float] | None = None,
+                zoom_camera: tuple[float, float, float, float] | None = None, max_zoom: float = 1.5) -> dict:
     """Batch-1 latency (ms) and batch-``batch`` throughput (frames/s) of ``model`` on ``device``;
     with ``mirror_camera`` (the network camera's fx, cx in pixels), also the batch-1 latency of
-    the mirror test (:func:`armpose.mirror_test.forward_with_mirror`, two images a forward)."""
+    the mirror test (:func:`armpose.mirror_test.forward_with_mirror`, two images a forward);
+    with ``zoom_camera`` (fx, fy, cx, cy), that of the zoom test
+    (:func:`armpose.zoom_test.forward_with_zoom`, two forwards and the resampling)."""
     model = model.to(device)
     imgs = images.to(device).contiguous(memory_format=torch.channels_last)
     times = _batch1_times(model, imgs, device, frames, warmup)
@@ -74,6 +79,10 @@ def time_device(model, images: torch.Tensor, device: torch.device, frames: int, 
         mirrored = _batch1_times(lambda x: forward_with_mirror(model, x, *mirror_camera), imgs, device, frames, warmup)
         out.update(mirror_batch1_median_ms=round(float(np.median(mirrored)), 3),
                    mirror_batch1_p95_ms=round(float(np.percentile(mirrored, 95)), 3))
+    if zoom_camera is not None:
+        zoomed = _batch1_times(lambda x: forward_with_zoom(model, x, zoom_camera, max_zoom), imgs, device, frames, warmup)
+        out.update(zoom_batch1_median_ms=round(float(np.median(zoomed)), 3),
+                   zoom_batch1_p95_ms=round(float(np.percentile(zoomed, 95)), 3))
     return out
 
 
@@ -88,18 +97,20 @@ def run(params: dict, root: Path | None = None) -> dict:
     rows = split_indices(arrays, "test")[: int(cfg["images"])]
     frames = LabelledFrames(data, rows)
     images = torch.stack([frames[i]["image"] for i in range(len(frames))])
-    fx, _, cx, _ = (float(v) for v in frames[0]["intrinsics"])
+    fx, fy, cx, cy = (float(v) for v in frames[0]["intrinsics"])
     mirror = (fx, cx) if cfg.get("mirror_test", False) else None
+    zoom = (fx, fy, cx, cy) if cfg.get("zoom_test", False) else None
+    options = (mirror, zoom, float(cfg.get("max_zoom", 1.5)))
     result = {"checkpoint": cfg["checkpoint"], "input": f"{images.shape[-1]}x{images.shape[-2]}",
               "paper_ms": [19, 23], "paper_device": "GTX 1080 Ti", "target_cpu_median_ms": 15.0,
               "cpu": {"threads": int(cfg["threads"]), "processor": platform.processor() or platform.machine(),
                       "cpu_count": os.cpu_count(),
                       **time_device(model, images, torch.device("cpu"), int(cfg["frames"]), int(cfg["warmup"]),
-                                    int(cfg["batch"]), mirror)}}
+                                    int(cfg["batch"]), *options)}}
     if torch.cuda.is_available():
         result["cuda"] = {"device": torch.cuda.get_device_name(0),
                           **time_device(model, images, torch.device("cuda"), int(cfg["frames"]), int(cfg["warmup"]),
-                                        int(cfg["batch"]), mirror)}
+                                        int(cfg["batch"]), *options)}
     atomic_write_json(root / OUTPUT, result)
     return result
 
@@ -115,8 +126,8 @@ def main(argv: list[str] | None = None) -> None:
         if dev in res:
             r = res[dev]
             fps = {k: v for k, v in r.items() if k.endswith("_fps")}
-            mirror = (f"; mirror test, batch 1: median {r['mirror_batch1_median_ms']:.1f} ms"
-                      if "mirror_batch1_median_ms" in r else "")
+            mirror = "".join(f"; {k} test, batch 1: median {r[f'{k}_batch1_median_ms']:.1f} ms"
+                             for k in ("mirror", "zoom") if f"{k}_batch1_median_ms" in r)
             print(f"latency {dev}: batch 1 median {r['batch1_median_ms']:.1f} ms, p95 {r['batch1_p95_ms']:.1f} ms; "
                   + ", ".join(f"{k[:-4]} {v:.0f} frames/s" for k, v in fps.items()) + mirror)
     print(f"latency: wrote {Path(args.root or project_root()) / OUTPUT}")
