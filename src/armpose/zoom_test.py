@@ -77,7 +77,11 @@ def unmagnify(maps: torch.Tensor, k: torch.Tensor, t: torch.Tensor) -> tuple[tor
     original pixels (pixel ``p`` reads ``k p + t``), and a (B, 1, H, W) bool of the pixels whose
     source lies inside the magnified image."""
     back = _affine_resample(maps, k, t)
-    covered = _affine_resample(torch.ones_like(maps[:, :1]), k, t) > 0.999
+    n, _, h, w = maps.shape
+    kk, tx, ty = k.reshape(n, 1, 1, 1), t[:, 0].reshape(n, 1, 1, 1), t[:, 1].reshape(n, 1, 1, 1)
+    u = kk * torch.arange(w, dtype=k.dtype, device=k.device).reshape(1, 1, 1, w) + tx
+    v = kk * torch.arange(h, dtype=k.dtype, device=k.device).reshape(1, 1, h, 1) + ty
+    covered = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
     return back, covered
 
 
