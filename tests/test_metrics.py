@@ -50,6 +50,15 @@ def test_depth_breakdown_separates_ray_errors_from_depth_errors():
     assert m["joint_median_true_depth_cm"] == pytest.approx(0.0, abs=1e-9)
     assert m["frame_depth_error_median_pct"] == pytest.approx(7.5)  # median of 10 and 5
     assert m["depth_error_median_pct"] == pytest.approx(7.5)
+    assert m["joint_median_true_frame_scale_cm"] == pytest.approx(0.0, abs=1e-9)   # a pure scale error
+    ratios = np.array([1.0, 1.1, 1.2])             # each joint on its own ray, at its own depth error
+    bent = truth * ratios[None, :, None]
+    m = depth_breakdown(bent, truth, valid)
+    assert m["joint_median_true_depth_cm"] == pytest.approx(0.0, abs=1e-9)
+    assert m["frame_depth_error_median_pct"] == pytest.approx(10.0)   # the shared part: the median ratio
+    left = np.linalg.norm(truth, axis=-1) * np.abs(ratios / 1.1 - 1)  # what scaling by 1 / 1.1 leaves
+    assert m["joint_median_true_frame_scale_cm"] == pytest.approx(100 * np.median(left))
+    assert m["joint_median_true_frame_scale_cm"] > 5
     sideways = truth.copy()
     sideways[..., 0] += 0.04                                     # right depth, 4 cm sideways
     sideways[1, 2, 0] = np.nan                                   # an invalid slot's garbage

@@ -26,7 +26,11 @@ Where the 3D error comes from (ours; :func:`depth_breakdown`):
   its own ray to the true depth, i.e. the part that 2D (ray) errors cause, cm;
 - depth error: median of ``|z_pred / z_true - 1|`` over valid joints, %;
 - frame depth error: median over frames of ``|median_j(z_pred / z_true) - 1|``, the depth
-  error that all joints of a frame share (a scale error), %.
+  error that all joints of a frame share (a scale error), %;
+- joint median at true frame scale: the joint error left after dividing each frame's
+  predicted joints by that frame's ``median_j(z_pred / z_true)`` (a scaling about the camera
+  centre, which keeps every ray): what remains when only the shared scale is fixed, i.e. the
+  2D errors plus the errors of each joint's depth relative to the others, cm.
 """
 from __future__ import annotations
 
@@ -38,7 +42,7 @@ ADD_AUC_THRESHOLD_M = 0.1
 PCK_PIXELS = (5, 10)
 SUMMARY_KEYS = ("mask_accuracy", "mask_iou", "type_accuracy", "joint_median_cm", "joint_mean_cm",
                 "base_median_cm", "base_mean_cm", "add_auc_10cm", "joint_median_true_depth_cm",
-                "depth_error_median_pct", "frame_depth_error_median_pct")
+                "depth_error_median_pct", "frame_depth_error_median_pct", "joint_median_true_frame_scale_cm")
 
 
 def mask_counts(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -86,15 +90,19 @@ def depth_breakdown(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> d
     valid = np.asarray(valid, bool) & (np.asarray(pred)[..., 2] > 0) & (np.asarray(truth)[..., 2] > 0)
     nan = float("nan")
     if not valid.any():
-        return {"joint_median_true_depth_cm": nan, "depth_error_median_pct": nan, "frame_depth_error_median_pct": nan}
+        return {"joint_median_true_depth_cm": nan, "depth_error_median_pct": nan, "frame_depth_error_median_pct": nan,
+                "joint_median_true_frame_scale_cm": nan}
     safe_pred = np.where(valid[..., None], pred, 1.0)
     safe_truth = np.where(valid[..., None], truth, 1.0)
     ratio = safe_pred[..., 2] / safe_truth[..., 2]                               # (N, J)
     on_true_depth = safe_pred / ratio[..., None]
-    frame_ratio = np.array([np.median(r[v]) for r, v in zip(ratio, valid) if v.any()])
+    per_frame = np.array([np.median(r[v]) if v.any() else 1.0 for r, v in zip(ratio, valid)])   # (N,)
+    on_true_scale = safe_pred / per_frame[:, None, None]
+    frame_ratio = per_frame[valid.any(1)]
     return {"joint_median_true_depth_cm": _median_cm(np.linalg.norm(on_true_depth - safe_truth, axis=-1)[valid]),
             "depth_error_median_pct": float(100 * np.median(np.abs(ratio[valid] - 1))),
-            "frame_depth_error_median_pct": float(100 * np.median(np.abs(frame_ratio - 1)))}
+            "frame_depth_error_median_pct": float(100 * np.median(np.abs(frame_ratio - 1))),
+            "joint_median_true_frame_scale_cm": _median_cm(np.linalg.norm(on_true_scale - safe_truth, axis=-1)[valid])}
 
 
 def summarise(pred: dict, truth: dict, rows: np.ndarray, pixel_scale: float = 1.0) -> dict:

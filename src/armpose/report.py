@@ -99,19 +99,24 @@ def results_table(metrics: Mapping, data_note: str) -> str:
 
 def depth_section(ours: dict) -> list[str]:
     """Where the joint error comes from, per family: rays (2D) or depth (see armpose.metrics)."""
-    keys = ("joint_median_cm", "joint_median_true_depth_cm", "depth_error_median_pct", "frame_depth_error_median_pct")
-    rows = [f for f in ours if all(k in ours[f] for k in keys)]
+    keys = ("joint_median_cm", "joint_median_true_depth_cm", "depth_error_median_pct", "frame_depth_error_median_pct",
+            "joint_median_true_frame_scale_cm")
+    rows = [f for f in ours if all(k in ours[f] for k in keys[:4])]
     if not rows:
         return []
     out = ["", "## Where the joint error comes from (two-stage transfer)", "",
            "Joint median at true depth: each predicted joint slid along its own ray to the true depth, "
            "so what is left is the 2D (ray) error. Frame depth error: the depth error that all joints "
-           "of a frame share, a scale error.", "",
-           "| Family | joint median cm | joint median at true depth cm | depth error median % | frame depth error median % |",
-           "|---|---:|---:|---:|---:|"]
+           "of a frame share, a scale error. Joint median at true frame scale: each frame's joints "
+           "scaled about the camera centre by that shared error, so what is left is the 2D error and "
+           "each joint's depth relative to the others.", "",
+           "| Family | joint median cm | joint median at true depth cm | depth error median % | frame depth error median % "
+           "| joint median at true frame scale cm |",
+           "|---|---:|---:|---:|---:|---:|"]
     for f in rows:
         m = ours[f]
-        out.append(f"| {f} | {m[keys[0]]:.2f} | {m[keys[1]]:.2f} | {m[keys[2]]:.1f} | {m[keys[3]]:.1f} |")
+        scale = m.get(keys[4], float("nan"))
+        out.append(f"| {f} | {m[keys[0]]:.2f} | {m[keys[1]]:.2f} | {m[keys[2]]:.1f} | {m[keys[3]]:.1f} | {scale:.2f} |")
     return out
 
 
