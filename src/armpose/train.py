@@ -24,6 +24,7 @@ import torch
 import torch.distributed as dist
 from tqdm import tqdm
 
+from armpose import distill
 from armpose.features import CachedFeatureFrames, batch_features, cache_trunk_features, trunk_is_frozen
 from armpose.data import (InfiniteBatches, LabelledFrames, foreground_fraction, make_loader, transfer_set,
                           validation_subset)
@@ -34,7 +35,7 @@ from armpose.model import build_model, predicted_mask, set_trainable
 
 log = logging.getLogger(__name__)
 HISTORY_FIELDS = ["step", "stage", "wall_s", "lr", "total", "mask", "joints", "base", "type", "reproj", "heatmap",
-                  "offsets", "direct", "val_total", "val_joint_cm", "val_base_cm", "val_type_acc", "val_mask_acc"]
+                  "offsets", "direct", "distill", "val_total", "val_joint_cm", "val_base_cm", "val_type_acc", "val_mask_acc"]
 
 
 # ----------------------------------------------------------------------------- set-up
@@ -201,6 +202,31 @@ def write_history(path: Path, rows: list[dict]) -> None:
     atomic_write_bytes(path, buf.getvalue().encode())
 
 
+# ----------------------------------------------------------------------------- distillation
+def _teacher(cfg: dict, base: dict, cached: bool, device) -> dict | None:
+    """The stage's ``distill`` teacher (:mod:`armpose.distill`) and its settings, or None."""
+    if not cfg.get("distill"):
+        return None
+    dcfg = distill.check_config(dict(cfg["distill"]), list(base["robot_types"]))
+    if cached:
+        distill.check_cached_teacher(dcfg, cfg["init_from"])
+    return {"model": distill.load_teacher(Path(dcfg["teacher"]), device), "weight": float(dcfg["weight"]),
+            "temperature": float(dcfg["temperature"]),
+            "classes": [base["robot_types"].index(r) for r in dcfg["robots"]]}
+
+
+def _with_distillation(losses: dict, out: dict, batch: dict, teacher: dict, cached: bool, bf16: bool) -> dict:
+    """``losses`` plus the ``distill`` term, added to ``total`` with its weight."""
+    model = teacher["model"]
+    with torch.no_grad(), torch.autocast(batch["robot"].device.type, dtype=torch.bfloat16, enabled=bf16):
+        t_out = model(features=batch_features(batch)) if cached else model(to_channels_last(batch["image"]))
+    term = distill.distill_loss(out["type_logits"].float(), t_out["type_logits"].float(), batch["robot"],
+                                teacher["classes"], teacher["temperature"])
+    total = losses["total"] + teacher["weight"] * term
+    assert torch.isfinite(total), {"distill": float(term)}
+    return {**losses, "distill": term, "total": total}
+
+
 # ----------------------------------------------------------------------------- the loop
 def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> dict:
     """Train one stage. ``cfg`` is the stage's params section, ``base`` the shared one.
@@ -256,6 +282,7 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     cache_s = time.perf_counter() - cache_s
     loader = make_loader(train_ds, bs, shuffle=True, seed=seed, num_workers=0 if cached else int(cfg.get("num_workers", 1)),
                          drop_last=True, distributed=world > 1)
+    teacher = _teacher(cfg, base, cached, device)
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.AdamW(params, lr=float(cfg["lr"]), weight_decay=float(cfg.get("weight_decay", 1e-4)))
     if world > 1:
@@ -292,6 +319,8 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
             out = model(features=batch_features(batch)) if cached else model(to_channels_last(batch["image"]))
         losses = multi_objective_loss({k: v.float() for k, v in out.items()}, batch, weights)
+        if teacher is not None:
+            losses = _with_distillation(losses, out, batch, teacher, cached, bf16)
         optimizer.zero_grad(set_to_none=True)
         losses["total"].backward()
         optimizer.step()

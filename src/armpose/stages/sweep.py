@@ -19,6 +19,7 @@ import numpy as np
 
 from armpose.config import load_params, project_root
 from armpose.io import atomic_write_bytes
+from armpose.distill import resolve_teacher
 from armpose.train import load_checkpoint, train
 
 log = logging.getLogger(__name__)
@@ -40,7 +41,8 @@ def run(params: dict, root: Path | None = None) -> dict:
     for n in cfg["sizes"]:
         init = root / "models" / "pretrain" / "model.pt"
         for stage in cfg["stages"]:
-            stage_cfg = {**params[stage], **cfg.get("overrides", {}), "per_type": int(n), "init_from": str(init)}
+            stage_cfg = resolve_teacher({**params[stage], **cfg.get("overrides", {}), "per_type": int(n),
+                                         "init_from": str(init)}, root)
             out = root / "models" / "sweep" / f"n{int(n)}" / stage
             summary = train(f"sweep_{stage}", stage_cfg, params["base"], root / "data" / "labels", out)
             history = load_checkpoint(out / "last.pt")["extra"]["history"]

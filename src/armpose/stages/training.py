@@ -12,14 +12,15 @@ import logging
 from pathlib import Path
 
 from armpose.config import load_params, project_root
+from armpose.distill import resolve_teacher
 from armpose.io import atomic_write_json
 from armpose.train import train
 
 
 def run_stage(stage: str, params: dict, root: Path | None = None) -> dict:
-    """Train ``stage`` with ``params``; ``init_from`` paths are relative to ``root``."""
+    """Train ``stage`` with ``params``; ``init_from`` and ``distill.teacher`` paths are relative to ``root``."""
     root = Path(root or project_root())
-    cfg = dict(params[stage])
+    cfg = resolve_teacher(dict(params[stage]), root)
     if cfg["init_from"] not in ("scratch", "resume"):
         cfg["init_from"] = str(root / cfg["init_from"])
     out = root / "models" / stage

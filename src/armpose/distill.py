@@ -1,0 +1,85 @@
+"""Learning without forgetting (Li and Hoiem 2016) for the transfer stages: the pretrained
+network as a teacher of the robot types it already knows.
+
+The transfer set holds only ``per_type`` frames of each UR robot (500 by default, against
+3,000 in pretraining), so refitting the type head on it costs UR type accuracy: on our default
+run the pretrained network told UR3, UR5 and UR10 apart in 90.6 % of the UR test frames, the
+transfer model in 88.2 %. A stage's ``distill`` section adds one loss term on the frames of the
+``robots`` it names: the KL divergence from the teacher's type probabilities to the student's,
+both restricted to those robots' classes and softened by ``temperature`` T (times T^2, so its
+gradient scale does not depend on T), weighted by ``weight``. It uses no data beyond the
+transfer set: the teacher only labels the same frames with what it learned from its own.
+
+``distill: {teacher: models/pretrain/model.pt, robots: [ur3, ur5, ur10], weight: 0.6, temperature: 2.0}``
+
+The teacher reads the same input as the student: the image, or, in a stage whose trunk is
+frozen and cached, the cached trunk features (then the teacher must be the checkpoint the
+student starts from, whose trunk made the cache; :func:`check_cached_teacher`).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+KEYS = {"teacher", "robots", "weight", "temperature"}
+
+
+def check_config(cfg: dict, robot_types: list[str]) -> dict:
+    """``cfg`` (a stage's ``distill`` section) with defaults, checked: a clear error for
+    unknown keys, unknown robots or a non-positive temperature."""
+    unknown = set(cfg) - KEYS
+    if unknown:
+        raise ValueError(f"distill: unknown keys {sorted(unknown)}; known: {sorted(KEYS)}")
+    if "teacher" not in cfg:
+        raise ValueError("distill: 'teacher' (a checkpoint path) is required")
+    out = {"robots": list(robot_types), "weight": 1.0, "temperature": 1.0, **cfg}
+    missing = [r for r in out["robots"] if r not in robot_types]
+    if missing:
+        raise ValueError(f"distill: robots {missing} are not in base.robot_types {robot_types}")
+    if not float(out["temperature"]) > 0:
+        raise ValueError(f"distill: temperature must be > 0, got {out['temperature']}")
+    return out
+
+
+def resolve_teacher(stage_cfg: dict, root: Path) -> dict:
+    """``stage_cfg`` with its ``distill.teacher`` path made relative to the project ``root``."""
+    if not stage_cfg.get("distill"):
+        return stage_cfg
+    return {**stage_cfg, "distill": {**stage_cfg["distill"], "teacher": str(Path(root) / stage_cfg["distill"]["teacher"])}}
+
+
+def check_cached_teacher(cfg: dict, init_from: str) -> None:
+    """A stage on cached trunk features can only distil from the checkpoint it starts from."""
+    if Path(cfg["teacher"]) != Path(init_from):
+        raise ValueError(f"distill: with a frozen, cached trunk the teacher must be init_from ({init_from}), "
+                         f"got {cfg['teacher']}")
+
+
+def load_teacher(path: Path, device) -> torch.nn.Module:
+    """The teacher network in eval mode, every parameter frozen."""
+    from armpose.model import build_model
+    from armpose.train import load_checkpoint   # train imports this module
+    ckpt = load_checkpoint(Path(path))
+    model = build_model(ckpt["config"]["base"].get("model", {}))
+    model.load_state_dict(ckpt["model"])
+    model = model.to(device).to(memory_format=torch.channels_last).eval()
+    for p in model.parameters():
+        p.requires_grad_(False)
+    return model
+
+
+def distill_loss(student_logits: torch.Tensor, teacher_logits: torch.Tensor, robot: torch.Tensor,
+                 classes: list[int], temperature: float) -> torch.Tensor:
+    """Mean over the frames whose true ``robot`` is in ``classes`` of
+    ``T^2 KL(softmax(teacher / T) || softmax(student / T))``, both logits (B, num_types) restricted
+    to ``classes``; 0 (with a gradient path) when the batch holds no such frame."""
+    idx = torch.as_tensor(classes, device=student_logits.device)
+    rows = torch.isin(robot.long(), idx)
+    if not bool(rows.any()):
+        return student_logits.sum() * 0.0
+    t = float(temperature)
+    log_student = F.log_softmax(student_logits[rows][:, idx].float() / t, -1)
+    log_teacher = F.log_softmax(teacher_logits[rows][:, idx].float() / t, -1)
+    return F.kl_div(log_student, log_teacher, log_target=True, reduction="batchmean") * t * t
