@@ -37,7 +37,7 @@ LEAF_GROUPS: tuple[str, ...] = ("trunk.early", "trunk.late", "mask_decoder", "he
 STAGE1_COLOR = "#5b8fd9"
 STAGE2_COLOR = "#e0605a"
 FROZEN_COLOR = "#c8c8c8"
-LOSS_TERMS = ("total", "mask", "joints", "base", "type")
+LOSS_TERMS = ("total", "mask", "joints", "base", "type", "distill")
 VAL_FIELDS = tuple(f for f in HISTORY_FIELDS if f.startswith("val_"))
 
 
@@ -269,9 +269,10 @@ def seconds_per_step(history: Mapping[str, np.ndarray]) -> float:
 
 
 def _plot_terms(ax, step, history, smooth_from: int):
-    colors = {"total": "black", "mask": "tab:red", "joints": "tab:blue", "base": "tab:green", "type": "tab:purple"}
+    colors = {"total": "black", "mask": "tab:red", "joints": "tab:blue", "base": "tab:green", "type": "tab:purple",
+              "distill": "tab:orange"}
     for term in LOSS_TERMS:
-        if term not in history:
+        if term not in history or np.isnan(history[term]).all():
             continue
         y = history[term]
         if len(y) >= smooth_from:
@@ -283,7 +284,7 @@ def _plot_terms(ax, step, history, smooth_from: int):
 
 def loss_curves_figure(history: Mapping[str, np.ndarray], title: str = "", smooth_from: int = 50) -> Figure:
     """Training loss terms against the step (left: ``total`` and ``mask``, ``joints``,
-    ``base``, ``type``, unweighted; histories of ``smooth_from`` steps or more are drawn faint
+    ``base``, ``type`` and, in a stage that distils (:mod:`armpose.distill`), ``distill``, unweighted; histories of ``smooth_from`` steps or more are drawn faint
     with an EMA on top) and, right, the validation metrics where the history has any: median
     joint and base error (cm, left axis), type and mask accuracy (%, right axis)."""
     step = history["step"]
