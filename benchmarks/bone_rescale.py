@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
 
 from armpose.config import project_root
 from armpose.evaluate import family_of, load_model, predict_split
@@ -66,15 +65,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", nargs="?", type=Path, default=Path("models/transfer_stage2/model.pt"))
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     root = project_root()
-    base_cfg = yaml.safe_load((root / "params.yaml").read_text())["base"]
-    torch.set_num_threads(int(base_cfg.get("threads", 2)))
-    types = list(base_cfg["robot_types"])
+    torch.set_num_threads(args.threads)
+    model, config = load_model(root / args.checkpoint)
+    types = list(config["base"]["robot_types"])
     families = family_of(types)
     names = list(dict.fromkeys(families))
-    model, _ = load_model(root / args.checkpoint)
     pred, truth = predict_split(model, root / "data" / "labels", "test")
     s = rescale_factors(pred["joints"], pred["base"], pred["type"], [bone_lengths(t) for t in types])
     out = {"checkpoint": str(args.checkpoint),

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from armpose.config import profile_params
-from armpose.distill import check_cached_teacher, check_config, distill_loss, resolve_teacher
+from armpose.distill import check_cached_teacher, check_config, check_teacher_types, distill_loss, resolve_teacher
 from armpose.stages import pretrain, transfer_stage1, transfer_stage2
 from armpose.train import load_checkpoint
 
@@ -47,11 +47,29 @@ def test_settings_are_checked_with_clear_errors(tmp_path):
         check_config({"teacher": "t.pt", "robots": ["ur7"]}, TYPES)
     with pytest.raises(ValueError, match="temperature"):
         check_config({"teacher": "t.pt", "temperature": 0}, TYPES)
+    with pytest.raises(ValueError, match="weight.*-1"):
+        check_config({"teacher": "t.pt", "weight": -1}, TYPES)
+    with pytest.raises(ValueError, match="non-empty list.*'ur3'"):
+        check_config({"teacher": "t.pt", "robots": "ur3"}, TYPES)
+    with pytest.raises(ValueError, match="non-empty list"):
+        check_config({"teacher": "t.pt", "robots": []}, TYPES)
+    for bad in ("models/pretrain/model.pt", True):
+        with pytest.raises(ValueError, match="mapping with 'teacher'.*" + str(bad)[:6]):
+            check_config(bad, TYPES)
+        with pytest.raises(ValueError, match="mapping with 'teacher'"):
+            resolve_teacher({"distill": bad}, tmp_path)
+    check_cached_teacher({"teacher": "a.pt"}, "resume")                 # a resumed run passed the check before
     with pytest.raises(ValueError, match="init_from"):
         check_cached_teacher({"teacher": "a.pt"}, "b.pt")
     cfg = resolve_teacher({"distill": {"teacher": "models/pretrain/model.pt"}}, tmp_path)
     assert cfg["distill"]["teacher"] == str(tmp_path / "models/pretrain/model.pt")
     assert resolve_teacher({"distill": None}, tmp_path) == {"distill": None}
+
+
+def test_a_teacher_with_other_robot_types_is_refused():
+    check_teacher_types(TYPES, TYPES, Path("t.pt"))
+    with pytest.raises(ValueError, match="t.pt.*robot types"):
+        check_teacher_types(["ur3", "ur5", "ur10"], TYPES, Path("t.pt"))
 
 
 def test_transfer_stages_train_with_distillation_and_log_the_term(tiny_project, tmp_path):

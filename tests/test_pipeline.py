@@ -44,6 +44,8 @@ def test_dvc_repro_runs_every_stage_and_then_does_nothing(tmp_path, tiny_params)
     assert test["mirror_test"]["all"]["frames"] == test["all"]["frames"]             # evaluate.mirror_test
     latency = json.loads((work / "results" / "latency.json").read_text())["cpu"]
     assert latency["mirror_batch1_median_ms"] > 0                                   # latency.mirror_test
+    assert test["zoom_test"]["all"]["frames"] == test["all"]["frames"]               # evaluate.zoom_test
+    assert latency["zoom_batch1_median_ms"] > 0                                     # latency.zoom_test
     table = (work / "results" / "results_table.md").read_text()
     assert "| recorded | Panda | 8 |" in table and "Jitter reduction" in table and "| tripod | 10 |" in table
     assert "## Mirror test" in table

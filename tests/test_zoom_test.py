@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 import torch
 
-from armpose.zoom_test import (camera_columns, forward_with_zoom, magnify, unmagnify, unzoom_points, zoom_average,
-                               zoom_for_points)
+from armpose.report import option_section
+from armpose.zoom_test import (camera_columns, check_max_zoom, forward_with_zoom, magnify, unmagnify, unzoom_points,
+                               zoom_average, zoom_for_points, zoom_refine)
 
 W, H = 256, 212
 CAM = (309.5, 309.2, 128.0, 105.5)
@@ -127,3 +128,41 @@ def test_oracle_on_a_magnified_frame_maps_back_to_the_truth(point):
     zoomed_alone = 2 * avg["base"][0] - single["base"][0]
     torch.testing.assert_close(zoomed_alone, truth, atol=0.03, rtol=0)
     assert avg["mask_logits"].shape == (1, 1, H, W)
+
+
+def test_per_frame_cameras_and_the_valid_points_decide_each_frame_s_box():
+    pts = torch.tensor([[[0.0, 0.0, 2.0], [0.1, 0.05, 2.0], [3.0, 2.0, 2.0]]] * 2)
+    cams = torch.tensor([CAM, (CAM[0] * 2, CAM[1] * 2, CAM[2], CAM[3])])
+    valid = torch.tensor([[True, True, False], [True, True, False]])       # slot 3: an unused joint slot
+    k, t = zoom_for_points(pts, cams, (W, H), max_zoom=10.0, valid=valid)
+    assert float(k[1]) < float(k[0]) - 1                                 # twice the focal length: a box twice as big
+    for row in range(2):                                                 # each box centre lands on its principal point
+        cam = tuple(float(c) for c in cams[row])
+        centre = (project(pts[row, 0].numpy(), cam) + project(pts[row, 1].numpy(), cam)) / 2
+        assert (k[row] * torch.tensor(centre, dtype=torch.float32) + t[row]).tolist() == pytest.approx(
+            [CAM[2], CAM[3]], abs=1e-3)
+    k_all, _ = zoom_for_points(pts, cams, (W, H), max_zoom=10.0)
+    assert (k_all < k).all()                                             # the far slot would have widened the box
+    for bad in (0.5, "2", True):
+        with pytest.raises(ValueError, match="max_zoom"):
+            check_max_zoom(bad)
+
+
+def test_zoom_refine_with_joint_counts_ignores_the_unused_slot():
+    p = np.array([0.1, -0.05, 2.0])
+    images = ball_image(p[None])
+    oracle = BallOracle()
+    single = oracle(images)
+    single["joints"][:, 6] = torch.tensor([5.0, 5.0, 2.0])               # slot 7, unused by a 6-joint robot
+    single["type_logits"][:, 0] = 5.0                                    # predicted type 0: 6 joints
+    avg = zoom_refine(oracle, images, single, CAM, max_zoom=1.5, joint_counts=[6, 6, 6, 7, 7])
+    torch.testing.assert_close(avg["base"][0], torch.tensor(p, dtype=torch.float32), atol=0.03, rtol=0)
+
+
+def test_report_section_lists_single_and_zoom_per_family():
+    fam = {"joint_median_cm": 14.3, "base_median_cm": 12.6, "type_accuracy": 0.902, "mask_accuracy": 0.992}
+    zoomed = {**fam, "type_accuracy": 0.92}
+    text = "\n".join(option_section("zoom_test", {"UR": fam}, {"by_family": {"UR": zoomed}},
+                                    {"cpu": {"batch1_median_ms": 11.8, "zoom_batch1_median_ms": 29.9}}))
+    assert "## Zoom test" in text and "| UR | 14.30 / 14.30 | 12.60 / 12.60 | 90.2 / 92.0 | 99.2 / 99.2 |" in text
+    assert "11.8 ms single, 29.9 ms with the zoom test" in text

@@ -26,42 +26,64 @@ import torch.nn.functional as F
 KEYS = {"teacher", "robots", "weight", "temperature"}
 
 
-def check_config(cfg: dict, robot_types: list[str]) -> dict:
-    """``cfg`` (a stage's ``distill`` section) with defaults, checked: a clear error for
-    unknown keys, unknown robots or a non-positive temperature."""
+def _positive_number(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        raise ValueError(f"distill: {name} must be a number > 0, got {value!r}")
+    return float(value)
+
+
+def check_config(cfg, robot_types: list[str]) -> dict:
+    """``cfg`` (a stage's ``distill`` section) with defaults, checked: a clear error, naming the
+    value, for a section that is not a mapping with a ``teacher``, unknown keys, robots that are
+    not a non-empty list of known types, or a weight or temperature that is not > 0."""
+    if not isinstance(cfg, dict) or "teacher" not in cfg:
+        raise ValueError(f"distill must be a mapping with 'teacher' (a checkpoint path), got {cfg!r}")
     unknown = set(cfg) - KEYS
     if unknown:
         raise ValueError(f"distill: unknown keys {sorted(unknown)}; known: {sorted(KEYS)}")
-    if "teacher" not in cfg:
-        raise ValueError("distill: 'teacher' (a checkpoint path) is required")
     out = {"robots": list(robot_types), "weight": 1.0, "temperature": 1.0, **cfg}
+    if not isinstance(out["robots"], list) or not out["robots"]:
+        raise ValueError(f"distill: robots must be a non-empty list of robot types, got {out['robots']!r}")
     missing = [r for r in out["robots"] if r not in robot_types]
     if missing:
         raise ValueError(f"distill: robots {missing} are not in base.robot_types {robot_types}")
-    if not float(out["temperature"]) > 0:
-        raise ValueError(f"distill: temperature must be > 0, got {out['temperature']}")
+    out["weight"] = _positive_number("weight", out["weight"])
+    out["temperature"] = _positive_number("temperature", out["temperature"])
     return out
 
 
 def resolve_teacher(stage_cfg: dict, root: Path) -> dict:
     """``stage_cfg`` with its ``distill.teacher`` path made relative to the project ``root``."""
-    if not stage_cfg.get("distill"):
+    dcfg = stage_cfg.get("distill")
+    if not dcfg:
         return stage_cfg
-    return {**stage_cfg, "distill": {**stage_cfg["distill"], "teacher": str(Path(root) / stage_cfg["distill"]["teacher"])}}
+    if not isinstance(dcfg, dict) or "teacher" not in dcfg:
+        raise ValueError(f"distill must be a mapping with 'teacher' (a checkpoint path), got {dcfg!r}")
+    return {**stage_cfg, "distill": {**dcfg, "teacher": str(Path(root) / dcfg["teacher"])}}
 
 
 def check_cached_teacher(cfg: dict, init_from: str) -> None:
-    """A stage on cached trunk features can only distil from the checkpoint it starts from."""
-    if Path(cfg["teacher"]) != Path(init_from):
+    """A stage on cached trunk features can only distil from the checkpoint it starts from
+    (``init_from: resume`` continues a run that passed this check when it started)."""
+    if init_from != "resume" and Path(cfg["teacher"]).resolve() != Path(init_from).resolve():
         raise ValueError(f"distill: with a frozen, cached trunk the teacher must be init_from ({init_from}), "
                          f"got {cfg['teacher']}")
 
 
-def load_teacher(path: Path, device) -> torch.nn.Module:
-    """The teacher network in eval mode, every parameter frozen."""
+def check_teacher_types(teacher_types: list[str], robot_types: list[str], path: Path) -> None:
+    """The teacher's classes must be the student's, in the same order."""
+    if list(teacher_types) != list(robot_types):
+        raise ValueError(f"distill: teacher {path} was trained on robot types {list(teacher_types)}, "
+                         f"this stage on {list(robot_types)}; the type classes must match")
+
+
+def load_teacher(path: Path, device, robot_types: list[str]) -> torch.nn.Module:
+    """The teacher network in eval mode, every parameter frozen; its robot types must be
+    ``robot_types``."""
     from armpose.model import build_model
     from armpose.train import load_checkpoint   # train imports this module
     ckpt = load_checkpoint(Path(path))
+    check_teacher_types(ckpt["config"]["base"]["robot_types"], robot_types, Path(path))
     model = build_model(ckpt["config"]["base"].get("model", {}))
     model.load_state_dict(ckpt["model"])
     model = model.to(device).to(memory_format=torch.channels_last).eval()

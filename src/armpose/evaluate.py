@@ -19,10 +19,10 @@ from armpose.data import LabelledFrames, split_indices
 from armpose.labels.dataset import SOURCE_CODES, load_dataset
 from armpose.metrics import confusion_matrix, mask_counts, summarise
 from armpose.mirror_test import forward_with_mirror
-from armpose.zoom_test import zoom_refine
 from armpose.model import build_model, predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint, to_channels_last
+from armpose.zoom_test import check_max_zoom, zoom_refine
 
 log = logging.getLogger(__name__)
 
@@ -45,11 +45,15 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
     joint_valid, base, type, intrinsics, distance, source, recording, row. With ``mirror``,
     ``pred["mirror"]`` holds the same keys for the mirror test (:mod:`armpose.mirror_test`),
     from the same forward passes; with ``zoom``, ``pred["zoom"]`` those of the zoom test
-    (:mod:`armpose.zoom_test`, magnification up to ``max_zoom``: one more pass per batch)."""
+    (:mod:`armpose.zoom_test`, magnification up to ``max_zoom``: one more pass per batch; scored
+    on the single pass, without the mirror, even when ``mirror`` is on)."""
     arrays, _ = load_dataset(Path(data_dir))
     rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
     frames = LabelledFrames(Path(data_dir), rows)
     single, averaged, zoomed = _Collected(), _Collected(), _Collected()
+    if zoom:
+        max_zoom = check_max_zoom(max_zoom)
+        joint_counts = [get_robot(t).num_joints for t in frames.robot_types]
     for start in tqdm(range(0, len(frames), batch_size), desc="evaluate", unit="batch", dynamic_ncols=True):
         items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
         images = torch.stack([it["image"] for it in items]).to(device)
@@ -62,7 +66,7 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
             out = model(to_channels_last(images))
         single.add(model, out, masks)
         if zoom:
-            zoomed.add(model, zoom_refine(model, images, out, intrinsics, max_zoom), masks)
+            zoomed.add(model, zoom_refine(model, images, out, intrinsics, max_zoom, joint_counts=joint_counts), masks)
     pred = single.arrays()
     if mirror:
         pred["mirror"] = averaged.arrays()

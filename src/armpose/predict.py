@@ -27,11 +27,11 @@ import torch
 from armpose.geometry import Camera
 from armpose.intrinsics import load_intrinsics
 from armpose.mirror_test import forward_with_mirror
-from armpose.zoom_test import zoom_refine
 from armpose.io import atomic_write_bytes
 from armpose.model import predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint
+from armpose.zoom_test import check_max_zoom, zoom_refine
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
@@ -110,7 +110,8 @@ class Predictor:
                 raise PredictError(f"{ckpt_path}: cannot use this checkpoint ({err})") from err
         else:
             config = load_checkpoint(ckpt_path)["config"]
-        self.model, self.device, self.mirror, self.zoom, self.max_zoom = model, device, mirror, zoom, max_zoom
+        self.model, self.device, self.mirror, self.zoom = model, device, mirror, zoom
+        self.max_zoom = check_max_zoom(max_zoom)
         self.base = config["base"]
         self.types = list(self.base["robot_types"])
         self.net = network_camera(self.base)
@@ -136,7 +137,7 @@ class Predictor:
         out = self.forward(x)
         if self.zoom:
             net = (self.net.fx, self.net.fy, self.net.cx, self.net.cy)
-            out = zoom_refine(self.forward, x, out, net, self.max_zoom)
+            out = zoom_refine(self.forward, x, out, net, self.max_zoom, joint_counts=self.num_joints)
         latency = 1000 * (time.perf_counter() - t)
         probs = out["type_logits"][0].float().softmax(-1).cpu().numpy()
         k = int(probs.argmax())

@@ -250,7 +250,8 @@ def iter_sequence(frames: Sequence[str | Path], checkpoint: Path | str, intrinsi
                   filter: str = "kalman", rate_hz: float | None = DEFAULT_RATE_HZ, model=None, device: str = "cpu",
                   joint_angles=None, robot: str | None = None, masks: Path | None = None, errors: list | None = None,
                   method: str = "huber", threshold_m: float = 0.05,
-                  mirror: bool = False, zoom: bool = False) -> Iterator[tuple[dict, np.ndarray, np.ndarray]]:
+                  mirror: bool = False,
+                  zoom: bool = False) -> Iterator[tuple[dict, np.ndarray, np.ndarray]]:
     """``(row, RGB image, mask)`` per processed frame, in order, as soon as each is ready.
 
     Arguments as :func:`predict_sequence`, plus ``mirror`` (the mirror test of

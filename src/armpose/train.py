@@ -207,10 +207,11 @@ def _teacher(cfg: dict, base: dict, cached: bool, device) -> dict | None:
     """The stage's ``distill`` teacher (:mod:`armpose.distill`) and its settings, or None."""
     if not cfg.get("distill"):
         return None
-    dcfg = distill.check_config(dict(cfg["distill"]), list(base["robot_types"]))
+    dcfg = distill.check_config(cfg["distill"], list(base["robot_types"]))
     if cached:
         distill.check_cached_teacher(dcfg, cfg["init_from"])
-    return {"model": distill.load_teacher(Path(dcfg["teacher"]), device), "weight": float(dcfg["weight"]),
+    return {"model": distill.load_teacher(Path(dcfg["teacher"]), device, list(base["robot_types"])),
+            "weight": float(dcfg["weight"]),
             "temperature": float(dcfg["temperature"]),
             "classes": [base["robot_types"].index(r) for r in dcfg["robots"]]}
 

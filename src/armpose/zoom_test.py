@@ -22,7 +22,9 @@ original's, so its depth is ``k z'`` (the depth that apparent size gives). Hence
 
     z = k z',   x = (fx x'/z' + cx - k cx - t_x) z / (k fx),   y likewise.
 
-The frame itself does not move, so ``k = 1`` and ``t = 0`` give back the first pass exactly.
+``k = 1`` and ``t = 0`` give back the first pass exactly; where the box fills the frame, ``k``
+is clipped to 1 but the frame is still shifted to centre the box. The box holds the joints of the
+predicted robot type and the base, when the caller passes the types' joint counts.
 """
 from __future__ import annotations
 
@@ -34,7 +36,7 @@ import torch.nn.functional as F
 OUTPUT_KEYS = ("joints", "base", "type_logits", "mask_logits")
 
 
-Camera = "tuple[float, float, float, float] | torch.Tensor"
+CameraLike = "tuple[float, float, float, float] | torch.Tensor"   # one (fx, fy, cx, cy), or one per frame
 
 
 def camera_columns(camera, n: int, like: torch.Tensor) -> list[torch.Tensor]:
@@ -45,19 +47,33 @@ def camera_columns(camera, n: int, like: torch.Tensor) -> list[torch.Tensor]:
     return list(cam.expand(n, 4).unbind(-1))
 
 
-def zoom_for_points(points: torch.Tensor, camera: Camera, size: tuple[int, int], max_zoom: float = 1.5,
-                    margin: float = 0.25, pad_px: float = 8.0) -> tuple[torch.Tensor, torch.Tensor]:
+def check_max_zoom(max_zoom) -> float:
+    """``max_zoom`` as a float, or a ValueError naming it unless it is a number >= 1."""
+    if isinstance(max_zoom, bool) or not isinstance(max_zoom, (int, float)) or not max_zoom >= 1:
+        raise ValueError(f"max_zoom must be a number >= 1, got {max_zoom!r}")
+    return float(max_zoom)
+
+
+def zoom_for_points(points: torch.Tensor, camera: CameraLike, size: tuple[int, int], max_zoom: float = 1.5,
+                    margin: float = 0.25, pad_px: float = 8.0,
+                    valid: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(k, t)``: per frame, magnification ``k`` (B,) and offset ``t`` (B, 2) pixels that put the
-    box of ``points`` (B, N, 3) (metres, camera frame, in front of the camera) at the principal
-    point, magnified to fill the image ``size`` = (width, height) with ``margin`` (a fraction of
-    the box size) plus ``pad_px`` on every side, ``1 <= k <= max_zoom``."""
-    if max_zoom < 1:
-        raise ValueError(f"max_zoom must be >= 1, got {max_zoom}")
+    box of ``points`` (B, N, 3) (metres, camera frame, in front of the camera; only those where
+    ``valid`` (B, N) is true, if given) at the principal point, magnified to fill the image
+    ``size`` = (width, height) with ``margin`` (a fraction of the box size) plus ``pad_px`` on
+    every side, ``1 <= k <= max_zoom``. Where ``k`` is clipped to 1 the frame is still shifted
+    by ``t``, to centre the box."""
+    max_zoom = check_max_zoom(max_zoom)
     fx, fy, cx, cy = (c[:, None] for c in camera_columns(camera, points.shape[0], points))
     width, height = size
     z = points[..., 2].clamp(min=1e-3)
     u, v = fx * points[..., 0] / z + cx, fy * points[..., 1] / z + cy
-    umin, umax, vmin, vmax = u.amin(1), u.amax(1), v.amin(1), v.amax(1)
+    if valid is not None:
+        inf = torch.full_like(u, float("inf"))
+        umin, umax = torch.where(valid, u, inf).amin(1), torch.where(valid, u, -inf).amax(1)
+        vmin, vmax = torch.where(valid, v, inf).amin(1), torch.where(valid, v, -inf).amax(1)
+    else:
+        umin, umax, vmin, vmax = u.amin(1), u.amax(1), v.amin(1), v.amax(1)
     box_w = (umax - umin + 1) * (1 + 2 * margin) + 2 * pad_px
     box_h = (vmax - vmin + 1) * (1 + 2 * margin) + 2 * pad_px
     k = torch.minimum(width / box_w, height / box_h).clamp(1.0, float(max_zoom))
@@ -101,20 +117,20 @@ def _affine_resample(x: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch
     return F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
 
 
-def unzoom_points(points: torch.Tensor, k: torch.Tensor, t: torch.Tensor, camera: Camera) -> torch.Tensor:
+def unzoom_points(points: torch.Tensor, k: torch.Tensor, t: torch.Tensor, camera: CameraLike) -> torch.Tensor:
     """Points ``(B, ..., 3)`` predicted on magnified images, in the original camera's frame
     (module docstring). ``k`` (B,), ``t`` (B, 2) as from :func:`zoom_for_points`."""
     shape = (-1,) + (1,) * (points.dim() - 2)
     fx, fy, cx, cy = (c.reshape(shape) for c in camera_columns(camera, points.shape[0], points))
     kk, tx, ty = k.to(points.dtype).reshape(shape), t[:, 0].to(points.dtype).reshape(shape), t[:, 1].to(points.dtype).reshape(shape)
     zp = points[..., 2]
-    z = kk * zp
-    x = (fx * points[..., 0] / zp + cx - kk * cx - tx) * z / (kk * fx)
-    y = (fy * points[..., 1] / zp + cy - kk * cy - ty) * z / (kk * fy)
-    return torch.stack([x, y, z], -1)
+    # x = (fx x'/z' + cx - k cx - t_x) z / (k fx) with z = k z', without dividing by z'
+    x = points[..., 0] + ((1 - kk) * cx - tx) * zp / fx
+    y = points[..., 1] + ((1 - kk) * cy - ty) * zp / fy
+    return torch.stack([x, y, kk * zp], -1)
 
 
-def zoom_average(single: dict, zoomed: dict, k: torch.Tensor, t: torch.Tensor, camera: Camera) -> dict:
+def zoom_average(single: dict, zoomed: dict, k: torch.Tensor, t: torch.Tensor, camera: CameraLike) -> dict:
     """The mean of ``single`` (outputs on the images) and ``zoomed`` (outputs on the magnified
     images), both dicts with :data:`OUTPUT_KEYS` (``mask_logits`` optional)."""
     probs = (single["type_logits"].float().softmax(-1) + zoomed["type_logits"].float().softmax(-1)) / 2
@@ -128,20 +144,27 @@ def zoom_average(single: dict, zoomed: dict, k: torch.Tensor, t: torch.Tensor, c
     return out
 
 
-def zoom_refine(forward: Callable[[torch.Tensor], dict], images: torch.Tensor, single: dict, camera: Camera,
-                max_zoom: float = 1.5, margin: float = 0.25) -> dict:
+def zoom_refine(forward: Callable[[torch.Tensor], dict], images: torch.Tensor, single: dict, camera: CameraLike,
+                max_zoom: float = 1.5, margin: float = 0.25, joint_counts: list[int] | None = None) -> dict:
     """The zoom-test average, given ``single``, the outputs of ``forward`` on ``images``
     (B, 3, H, W) in [0, 1]: ``forward`` runs once more, on the magnified images.
-    ``camera``: (fx, fy, cx, cy) of the network input in pixels, or one row per frame."""
+    ``camera``: (fx, fy, cx, cy) of the network input in pixels, or one row per frame.
+    ``joint_counts`` (joints of each robot type, by class index): the box then holds only the
+    joints of each frame's predicted type (and the base), not the unused slots."""
     points = torch.cat([single["joints"], single["base"][:, None]], 1).float()
-    k, t = zoom_for_points(points, camera, (images.shape[-1], images.shape[-2]), max_zoom, margin)
+    valid = None
+    if joint_counts is not None:
+        counts = torch.as_tensor(joint_counts, device=points.device)[single["type_logits"].argmax(-1)]
+        slots = torch.arange(points.shape[1], device=points.device)
+        valid = (slots[None] < counts[:, None]) | (slots[None] == points.shape[1] - 1)
+    k, t = zoom_for_points(points, camera, (images.shape[-1], images.shape[-2]), max_zoom, margin, valid=valid)
     zoomed_images = magnify(images.float(), k, t).to(images.dtype).contiguous(memory_format=torch.channels_last)
     return zoom_average(single, forward(zoomed_images), k, t, camera)
 
 
-def forward_with_zoom(model, images: torch.Tensor, camera: Camera, max_zoom: float = 1.5,
-                      margin: float = 0.25) -> tuple[dict, dict]:
+def forward_with_zoom(model, images: torch.Tensor, camera: CameraLike, max_zoom: float = 1.5,
+                      margin: float = 0.25, joint_counts: list[int] | None = None) -> tuple[dict, dict]:
     """``(single, averaged)``: the model's outputs on ``images`` and the zoom-test average
     (two forward passes, the second on the magnified images)."""
     single = model(images)
-    return single, zoom_refine(model, images, single, camera, max_zoom, margin)
+    return single, zoom_refine(model, images, single, camera, max_zoom, margin, joint_counts)

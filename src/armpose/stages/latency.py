@@ -27,7 +27,8 @@ from armpose.evaluate import load_model
 from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
 from armpose.mirror_test import forward_with_mirror
-from armpose.zoom_test import forward_with_zoom
+from armpose.robots import get_robot
+from armpose.zoom_test import check_max_zoom, forward_with_zoom
 
 log = logging.getLogger(__name__)
 OUTPUT = Path("results/latency.json")
@@ -55,12 +56,14 @@ def _batch1_times(forward, imgs: torch.Tensor, device: torch.device, frames: int
 @torch.no_grad()
 def time_device(model, images: torch.Tensor, device: torch.device, frames: int, warmup: int, batch: int,
                 mirror_camera: tuple[float, float] | None = None,
-                zoom_camera: tuple[float, float, float, float] | None = None, max_zoom: float = 1.5) -> dict:
+                zoom_camera: tuple[float, float, float, float] | None = None, max_zoom: float = 1.5,
+                joint_counts: list[int] | None = None) -> dict:
     """Batch-1 latency (ms) and batch-``batch`` throughput (frames/s) of ``model`` on ``device``;
     with ``mirror_camera`` (the network camera's fx, cx in pixels), also the batch-1 latency of
     the mirror test (:func:`armpose.mirror_test.forward_with_mirror`, two images a forward);
     with ``zoom_camera`` (fx, fy, cx, cy), that of the zoom test
-    (:func:`armpose.zoom_test.forward_with_zoom`, two forwards and the resampling)."""
+    (:func:`armpose.zoom_test.forward_with_zoom`, two forwards and the resampling; ``joint_counts``
+    per robot type, as ``armpose predict`` passes them)."""
     model = model.to(device)
     imgs = images.to(device).contiguous(memory_format=torch.channels_last)
     times = _batch1_times(model, imgs, device, frames, warmup)
@@ -80,7 +83,8 @@ def time_device(model, images: torch.Tensor, device: torch.device, frames: int, 
         out.update(mirror_batch1_median_ms=round(float(np.median(mirrored)), 3),
                    mirror_batch1_p95_ms=round(float(np.percentile(mirrored, 95)), 3))
     if zoom_camera is not None:
-        zoomed = _batch1_times(lambda x: forward_with_zoom(model, x, zoom_camera, max_zoom), imgs, device, frames, warmup)
+        zoomed = _batch1_times(lambda x: forward_with_zoom(model, x, zoom_camera, max_zoom, joint_counts=joint_counts),
+                               imgs, device, frames, warmup)
         out.update(zoom_batch1_median_ms=round(float(np.median(zoomed)), 3),
                    zoom_batch1_p95_ms=round(float(np.percentile(zoomed, 95)), 3))
     return out
@@ -91,7 +95,8 @@ def run(params: dict, root: Path | None = None) -> dict:
     root = Path(root or project_root())
     cfg = params["latency"]
     torch.set_num_threads(int(cfg["threads"]))
-    model, _ = load_model(root / cfg["checkpoint"])
+    model, config = load_model(root / cfg["checkpoint"])
+    counts = [get_robot(t).num_joints for t in config["base"]["robot_types"]]
     data = root / "data" / "labels"
     arrays, _ = load_dataset(data)
     rows = split_indices(arrays, "test")[: int(cfg["images"])]
@@ -100,7 +105,7 @@ def run(params: dict, root: Path | None = None) -> dict:
     fx, fy, cx, cy = (float(v) for v in frames[0]["intrinsics"])
     mirror = (fx, cx) if cfg.get("mirror_test", False) else None
     zoom = (fx, fy, cx, cy) if cfg.get("zoom_test", False) else None
-    options = (mirror, zoom, float(cfg.get("max_zoom", 1.5)))
+    options = (mirror, zoom, check_max_zoom(cfg.get("max_zoom", 1.5)), counts)
     result = {"checkpoint": cfg["checkpoint"], "input": f"{images.shape[-1]}x{images.shape[-2]}",
               "paper_ms": [19, 23], "paper_device": "GTX 1080 Ti", "target_cpu_median_ms": 15.0,
               "cpu": {"threads": int(cfg["threads"]), "processor": platform.processor() or platform.machine(),
