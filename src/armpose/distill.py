@@ -80,13 +80,9 @@ def check_teacher_types(teacher_types: list[str], robot_types: list[str], path: 
 def load_teacher(path: Path, device, robot_types: list[str]) -> torch.nn.Module:
     """The teacher network in eval mode, every parameter frozen; its robot types must be
     ``robot_types``."""
-    from armpose.model import build_model
-    from armpose.train import load_checkpoint   # train imports this module
-    ckpt = load_checkpoint(Path(path))
-    check_teacher_types(ckpt["config"]["base"]["robot_types"], robot_types, Path(path))
-    model = build_model(ckpt["config"]["base"].get("model", {}))
-    model.load_state_dict(ckpt["model"])
-    model = model.to(device).to(memory_format=torch.channels_last).eval()
+    from armpose.train import load_model   # train imports this module
+    model, config = load_model(Path(path), device)
+    check_teacher_types(config["base"]["robot_types"], robot_types, Path(path))
     for p in model.parameters():
         p.requires_grad_(False)
     return model

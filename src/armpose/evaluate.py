@@ -19,21 +19,12 @@ from armpose.data import LabelledFrames, split_indices
 from armpose.labels.dataset import SOURCE_CODES, load_dataset
 from armpose.metrics import confusion_matrix, mask_counts, summarise
 from armpose.mirror_test import forward_with_mirror
-from armpose.model import build_model, predicted_mask
+from armpose.model import predicted_mask
 from armpose.robots import get_robot
-from armpose.train import load_checkpoint, to_channels_last
+from armpose.train import load_checkpoint, load_model, to_channels_last  # noqa: F401 (load_model re-exported)
 from armpose.zoom_test import check_max_zoom, zoom_refine
 
 log = logging.getLogger(__name__)
-
-
-def load_model(checkpoint: Path, device: torch.device | str = "cpu"):
-    """(model in eval mode, checkpoint config) from an armpose checkpoint."""
-    ckpt = load_checkpoint(Path(checkpoint))
-    model = build_model(ckpt["config"]["base"].get("model", {}))
-    model.load_state_dict(ckpt["model"])
-    model = model.to(device).to(memory_format=torch.channels_last).eval()
-    return model, ckpt["config"]
 
 
 @torch.no_grad()

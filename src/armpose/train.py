@@ -75,6 +75,15 @@ def load_checkpoint(path: Path) -> dict:
     return ckpt
 
 
+def load_model(checkpoint: Path, device: torch.device | str = "cpu"):
+    """(model in eval mode, checkpoint config) from an armpose checkpoint."""
+    ckpt = load_checkpoint(Path(checkpoint))
+    model = build_model(ckpt["config"]["base"].get("model", {}))
+    model.load_state_dict(ckpt["model"])
+    model = model.to(device).to(memory_format=torch.channels_last).eval()
+    return model, ckpt["config"]
+
+
 def unwrap(model):
     return model.module if hasattr(model, "module") else model
 
