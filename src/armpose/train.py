@@ -32,6 +32,7 @@ from armpose.io import atomic_write_bytes
 from armpose.labels.dataset import load_dataset
 from armpose.losses import multi_objective_loss
 from armpose.model import build_model, predicted_mask, set_trainable
+from armpose.resolution import check_low_res, downscale_batch, input_scale
 
 log = logging.getLogger(__name__)
 HISTORY_FIELDS = ["step", "stage", "wall_s", "lr", "total", "mask", "joints", "base", "type", "reproj", "heatmap",
@@ -286,6 +287,10 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     if any(g == "mask_decoder" or g.startswith("mask_decoder.") for g in cfg["trainable"]):
         model.set_mask_prior(foreground_fraction(arrays, rows))   # the decision rule of this training set
     cached = bool(cfg.get("feature_cache", True)) and trunk_is_frozen(cfg["trainable"])
+    low_res = check_low_res(cfg.get("low_res"))
+    if cached and low_res and low_res["steps"]:
+        raise ValueError(f"{stage}: low_res needs images, but this run trains on cached trunk features "
+                         f"(trainable {cfg['trainable']}); set feature_cache: false or drop low_res")
     cache_s = time.perf_counter()
     if cached:  # the trunk never changes in this run: compute its features once
         train_ds = CachedFeatureFrames(train_ds, cache_trunk_features(model, train_ds, device, disable_bar=not master))
@@ -326,6 +331,9 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         for group in optimizer.param_groups:
             group["lr"] = lr
         batch = {k: v.to(device, non_blocking=True) for k, v in next(batches).items()}
+        if low_res and step == low_res["steps"] and step > start_step:
+            log.info("%s: step %d, training at the full input resolution from here", stage, step)
+        batch = downscale_batch(batch, input_scale(low_res, step))
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
             out = model(features=batch_features(batch)) if cached else model(to_channels_last(batch["image"]))
         losses = multi_objective_loss({k: v.float() for k, v in out.items()}, batch, weights)
