@@ -1,10 +1,15 @@
 """Progressive resizing: the first training steps at a reduced input resolution.
 
 A training step's cost grows with the pixel count, and on a CPU most of it is the trunk's
-convolutions; at half the width and height a step of the pipeline's network costs about
-2.5x less (``benchmarks/bench_low_res.py``). Coarse features (where the robot is, which
-robot, roughly how far) are learnt as well from small images, so a run can spend its first
-steps there and finish at the full resolution, and see more frames in the same wall time.
+convolutions: at half the width and height a step of the pipeline's network computes 1.8x
+faster on the 2-core reference machine (``benchmarks/bench_low_res.py``,
+``results/bench_low_res.json``). The idea (progressive resizing) is that coarse features are
+learnt as well from small images, so a run can spend its first steps there, finish at the
+full resolution and see more frames in the same wall time.
+
+Off in every profile: in a UR pretraining A/B it did not pay (README, "Tried, not adopted":
+half the input for the first 4,000 of 8,000 steps against 6,000 full-size steps gave a worse
+joint median and type accuracy in more wall time).
 
 A stage's ``low_res`` (``params.yaml``; absent or null: off) holds ``scale`` (0 < scale < 1,
 the factor on the input's width and height) and ``steps`` (how many of the first training
