@@ -8,7 +8,7 @@ outside the timing), shrunk by :func:`armpose.resolution.downscale_batch`, then 
 pass (bfloat16 autocast as in params), every loss term, backward and the AdamW update. The
 median over ``--steps`` timed steps after 3 warm-up steps, per scale, and each scale's
 speed-up over scale 1. Data loading is left out: it does not change with the scale (the
-frames are loaded at full size and shrunk after augmentation), about 30 ms a step here.
+frames are loaded at full size and shrunk after augmentation).
 Writes ``results/bench_low_res.json`` (atomically).
 """
 from __future__ import annotations

@@ -9,7 +9,9 @@
    distance together.
 2. **Mask errors.** Per robot family, the share of test pixels that are false positives and
    false negatives, the share of the wrong pixels that lie within 1 and within 3 px of the true
-   mask's outline (boundary errors, against whole missed or invented regions), and the pixel
+   mask's outline on either side (boundary errors, against whole missed or invented regions;
+   :func:`near_outline`), the share of all pixels in those bands (the base rate: thick links
+   have a longer outline), and the pixel
    accuracy if each image were thresholded at ``log((1 - p) / p)`` with ``p`` the robot share of
    its own first-pass mask instead of the training set's share (``armpose.model.predicted_mask``).
 
@@ -19,6 +21,7 @@ and prints it.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 from pathlib import Path
 
@@ -64,18 +67,23 @@ def type_and_depth(pred: dict, truth: dict, robot_types: list[str]) -> dict:
 
 
 def near_outline(mask: np.ndarray, radius: int) -> np.ndarray:
-    """Pixels within ``radius`` px of the outline of boolean ``mask`` (H, W)."""
+    """Pixels of boolean ``mask`` (H, W) at most ``radius`` px (Euclidean) from the nearest
+    pixel of the other class, on either side of the outline: ``radius=1`` is the ring of
+    pixels that touch the other class (4-neighbours), one pixel deep on each side."""
     m = mask.astype(np.uint8)
-    outline = cv2.morphologyEx(m, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))
-    return cv2.dilate(outline, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)) > 0
+    inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)       # fg: distance to background
+    outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)  # bg: distance to foreground
+    return np.where(mask, inside, outside) <= radius
 
 
 @torch.no_grad()
 def mask_errors(model, data_dir: Path, rows: np.ndarray, batch_size: int = 32) -> dict:
     """Counts over ``rows``: pixels, false positives and negatives, wrong pixels near the
-    outline (1 and 3 px), wrong pixels under the per-image threshold."""
+    outline (1 and 3 px) and all pixels there, wrong pixels under the per-image threshold
+    (the first-pass robot share is clipped to [0.001, 0.5] so the threshold stays finite and
+    never calls most of an image robot)."""
     frames = LabelledFrames(data_dir, rows)
-    c = dict.fromkeys(("pixels", "fp", "fn", "near1", "near3", "adaptive_wrong"), 0)
+    c = dict.fromkeys(("pixels", "fp", "fn", "near1", "near3", "band1", "band3", "adaptive_wrong"), 0)
     for start in range(0, len(frames), batch_size):
         items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
         logits = model(torch.stack([it["image"] for it in items]).contiguous(memory_format=torch.channels_last))[
@@ -89,8 +97,10 @@ def mask_errors(model, data_dir: Path, rows: np.ndarray, batch_size: int = 32) -
             c["pixels"] += gt.size
             c["fp"] += int((pm & ~gt).sum())
             c["fn"] += int((~pm & gt).sum())
-            c["near1"] += int((wrong & near_outline(gt, 1)).sum())
-            c["near3"] += int((wrong & near_outline(gt, 3)).sum())
+            for r in (1, 3):
+                band = near_outline(gt, r)
+                c[f"near{r}"] += int((wrong & band).sum())
+                c[f"band{r}"] += int(band.sum())
             c["adaptive_wrong"] += int((am != gt).sum())
     return c
 
@@ -102,6 +112,8 @@ def mask_summary(c: dict) -> dict:
             "false_negative_pct": round(100 * c["fn"] / c["pixels"], 2),
             "wrong_within_1px_of_outline_pct": round(100 * c["near1"] / max(wrong, 1), 1),
             "wrong_within_3px_of_outline_pct": round(100 * c["near3"] / max(wrong, 1), 1),
+            "pixels_within_1px_of_outline_pct": round(100 * c["band1"] / c["pixels"], 2),
+            "pixels_within_3px_of_outline_pct": round(100 * c["band3"] / c["pixels"], 2),
             "per_image_threshold_accuracy_pct": round(100 * (1 - c["adaptive_wrong"] / c["pixels"]), 2)}
 
 
@@ -125,7 +137,8 @@ def main() -> None:
     for family in dict.fromkeys(families):
         classes = [i for i, f in enumerate(families) if f == family]
         masks[family] = mask_summary(mask_errors(model, data_dir, rows[np.isin(robot, classes)]))
-    out = {"checkpoint": args.checkpoint, "split": "test", "type_and_depth": type_and_depth(pred, truth, robot_types),
+    digest = hashlib.sha256((root / args.checkpoint).read_bytes()).hexdigest()[:16]
+    out = {"checkpoint": args.checkpoint, "checkpoint_sha256_16": digest, "split": "test", "type_and_depth": type_and_depth(pred, truth, robot_types),
            "mask_errors": masks, "command": f"python benchmarks/error_analysis.py --checkpoint {args.checkpoint}"}
     atomic_write_json(Path(args.out), out)
     print(json.dumps(out, indent=2))

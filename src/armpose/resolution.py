@@ -1,15 +1,15 @@
 """Progressive resizing: the first training steps at a reduced input resolution.
 
 A training step's cost grows with the pixel count, and on a CPU most of it is the trunk's
-convolutions: at half the width and height a step of the pipeline's network computes 1.8x
-faster on the 2-core reference machine (``benchmarks/bench_low_res.py``,
+convolutions: at half the width and height a step of the pipeline's network takes 1.8x
+less time on the 2-core reference machine (``benchmarks/bench_low_res.py``,
 ``results/bench_low_res.json``). The idea (progressive resizing) is that coarse features are
 learnt as well from small images, so a run can spend its first steps there, finish at the
 full resolution and see more frames in the same wall time.
 
-Off in every profile: in a UR pretraining A/B it did not pay (README, "Tried, not adopted":
-half the input for the first 4,000 of 8,000 steps against 6,000 full-size steps gave a worse
-joint median and type accuracy in more wall time).
+Off in every profile: in a UR pretraining A/B it did not pay (README, "Progressive resizing":
+half the input for the first 4,000 of 8,000 steps, against 6,000 full-size steps in about the
+same training time, gave a worse joint median and type accuracy).
 
 A stage's ``low_res`` (``params.yaml``; absent or null: off) holds ``scale`` (0 < scale < 1,
 the factor on the input's width and height) and ``steps`` (how many of the first training
@@ -24,9 +24,14 @@ and augmentation:
 
 The 3D labels (camera optical frame, metres) are unchanged: a resized image is the same view
 through a coarser sensor, and the keypoint heads work in normalised image coordinates, so
-the same network reads both. Validation and every later stage run at the full resolution.
-Which steps are small is a function of the step number alone, so a resumed run takes the
-same path as an uninterrupted one.
+the geometry carries over. What does not carry over is the convolutions' sense of size in
+pixels, from which the network reads depth and robot type: trained on half-size frames, it
+is far off at full size until it has trained there again (README). Validation and every
+later stage run at the full resolution. Which steps are small is a function of the step
+number alone, so a resumed run takes the same path as an uninterrupted one. Only for stages
+trained from images without a plateau rule or a distillation teacher
+(:func:`check_stage_low_res`): the loss jumps when the input grows, and a teacher would read
+frames of a size it was never trained on.
 """
 from __future__ import annotations
 
@@ -47,6 +52,25 @@ def check_low_res(cfg) -> dict | None:
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         raise ValueError(f"low_res.steps must be a whole number >= 0, got {steps!r}")
     return {"scale": float(scale), "steps": int(steps)}
+
+
+def check_stage_low_res(stage: str, cfg: dict, cached: bool) -> dict | None:
+    """:func:`check_low_res` of a training stage's ``cfg``, refusing what does not mix with it:
+    cached trunk features (no images to shrink), a ``plateau`` rule (the loss jumps when the
+    input grows, which could end the run) and a ``distill`` teacher (it would read the shrunk
+    images it was not trained on). Errors name the stage and the values."""
+    low_res = check_low_res(cfg.get("low_res"))
+    if not low_res or not low_res["steps"]:
+        return low_res
+    clashes = [(what, value) for what, value, present in (
+        ("cached trunk features", f"trainable {cfg.get('trainable')}", cached),
+        ("a plateau rule", f"plateau {cfg.get('plateau')}", bool(cfg.get("plateau"))),
+        ("a distillation teacher", f"distill {cfg.get('distill')}", bool(cfg.get("distill")))) if present]
+    if clashes:
+        what, value = clashes[0]
+        raise ValueError(f"{stage}: low_res {cfg['low_res']} cannot be combined with {what} ({value}); "
+                         "low_res is for training from images without a plateau rule or a teacher")
+    return low_res
 
 
 def input_scale(low_res: dict | None, step: int) -> float:

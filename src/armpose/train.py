@@ -32,7 +32,7 @@ from armpose.io import atomic_write_bytes
 from armpose.labels.dataset import load_dataset
 from armpose.losses import multi_objective_loss
 from armpose.model import build_model, predicted_mask, set_trainable
-from armpose.resolution import check_low_res, downscale_batch, input_scale
+from armpose.resolution import check_stage_low_res, downscale_batch, input_scale
 
 log = logging.getLogger(__name__)
 HISTORY_FIELDS = ["step", "stage", "wall_s", "lr", "total", "mask", "joints", "base", "type", "reproj", "heatmap",
@@ -287,10 +287,7 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     if any(g == "mask_decoder" or g.startswith("mask_decoder.") for g in cfg["trainable"]):
         model.set_mask_prior(foreground_fraction(arrays, rows))   # the decision rule of this training set
     cached = bool(cfg.get("feature_cache", True)) and trunk_is_frozen(cfg["trainable"])
-    low_res = check_low_res(cfg.get("low_res"))
-    if cached and low_res and low_res["steps"]:
-        raise ValueError(f"{stage}: low_res needs images, but this run trains on cached trunk features "
-                         f"(trainable {cfg['trainable']}); set feature_cache: false or drop low_res")
+    low_res = check_stage_low_res(stage, cfg, cached)
     cache_s = time.perf_counter()
     if cached:  # the trunk never changes in this run: compute its features once
         train_ds = CachedFeatureFrames(train_ds, cache_trunk_features(model, train_ds, device, disable_bar=not master))
