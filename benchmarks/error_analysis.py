@@ -34,16 +34,8 @@ from armpose.data import LabelledFrames, split_indices
 from armpose.evaluate import family_of, load_model, predict_split
 from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
+from armpose.metrics import frame_depth_ratio
 from armpose.model import predicted_mask
-
-
-def frame_depth_ratio(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Per frame, the median over valid joints of predicted over true depth (N,); NaN without one."""
-    ratio = np.where(valid, pred[..., 2] / np.where(valid, truth[..., 2], 1.0), np.nan)
-    out = np.full(len(ratio), np.nan)
-    has = valid.any(1)
-    out[has] = np.nanmedian(ratio[has], axis=1)
-    return out
 
 
 def type_and_depth(pred: dict, truth: dict, robot_types: list[str]) -> dict:

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from armpose.metrics import confusion_matrix, depth_breakdown, error_by_distance, mask_counts, summarise
+from armpose.metrics import (confusion_matrix, depth_breakdown, error_by_distance, frame_depth_ratio, mask_counts,
+                             summarise)
 
 
 def _case():
@@ -84,3 +85,12 @@ def test_error_by_distance_bins():
     rows = error_by_distance(err, np.array([1.1, 1.9, 3.0]), np.array([1.0, 2.0, 4.0]))
     assert rows[0]["frames"] == 2 and rows[0]["joint_median_cm"] == pytest.approx(5.0)
     assert rows[1]["joint_median_cm"] == pytest.approx(20.0)
+
+
+def test_frame_depth_ratio_is_the_median_over_valid_joints_and_nan_without_one():
+    truth = np.array([[[0.1, 0.0, 2.0], [0.0, 0.2, 2.5], [0.3, 0.1, 3.0]]] * 2)
+    pred = truth.copy()
+    pred[0, :, 2] *= [1.1, 1.2, 9.0]            # the invalid third joint must not count
+    valid = np.array([[True, True, False], [False, False, False]])
+    ratio = frame_depth_ratio(pred, truth, valid)
+    assert np.isclose(ratio[0], 1.15) and np.isnan(ratio[1])

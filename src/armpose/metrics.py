@@ -84,6 +84,19 @@ def _mean_cm(values: np.ndarray) -> float:
     return float(100 * np.mean(v)) if v.size else float("nan")
 
 
+def frame_depth_ratio(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Per frame ``(N,)``, the median over its ``valid`` joints (both depths positive) of predicted
+    over true depth, from ``pred`` and ``truth`` (N, J, 3, metres, camera frame); NaN for a
+    frame without such a joint. One minus it is the depth error the frame's joints share."""
+    pred, truth = np.asarray(pred), np.asarray(truth)
+    valid = np.asarray(valid, bool) & (pred[..., 2] > 0) & (truth[..., 2] > 0)
+    ratio = np.where(valid, pred[..., 2] / np.where(valid, truth[..., 2], 1.0), np.nan)
+    out = np.full(len(ratio), np.nan)
+    has = valid.any(1)
+    out[has] = np.nanmedian(ratio[has], axis=1)
+    return out
+
+
 def depth_breakdown(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> dict:
     """Split the 3D joint error of ``pred`` against ``truth`` (N, J, 3, metres) into its ray
     and depth parts over the ``valid`` (N, J) joints; see the module docstring."""
@@ -96,8 +109,8 @@ def depth_breakdown(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> d
     safe_truth = np.where(valid[..., None], truth, 1.0)
     ratio = safe_pred[..., 2] / safe_truth[..., 2]                               # (N, J)
     on_true_depth = safe_pred / ratio[..., None]
-    per_frame = np.array([np.median(r[v]) if v.any() else 1.0 for r, v in zip(ratio, valid)])   # (N,)
-    on_true_scale = safe_pred / per_frame[:, None, None]
+    per_frame = frame_depth_ratio(pred, truth, valid)                                   # (N,), NaN: no joint
+    on_true_scale = safe_pred / np.where(np.isnan(per_frame), 1.0, per_frame)[:, None, None]
     frame_ratio = per_frame[valid.any(1)]
     return {"joint_median_true_depth_cm": _median_cm(np.linalg.norm(on_true_depth - safe_truth, axis=-1)[valid]),
             "depth_error_median_pct": float(100 * np.median(np.abs(ratio[valid] - 1))),
