@@ -22,20 +22,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from armpose.bone_fit import bone_lengths
 from armpose.config import project_root
 from armpose.evaluate import family_of, load_model, predict_split
 from armpose.io import atomic_write_json
-from armpose.robots import get_robot
-from armpose.robots.kinematics import Kinematics
 
 MIN_BONE_M = 0.05
-
-
-def bone_lengths(robot: str) -> np.ndarray:
-    """Distances (m) base -> joint 1 -> ... -> joint J of ``robot``, at any joint angles."""
-    spec = get_robot(robot)
-    joints = Kinematics(spec).joint_positions(np.zeros((1, spec.num_joints)))[0]
-    return np.linalg.norm(np.diff(np.vstack([np.zeros(3), joints]), axis=0), axis=1)
 
 
 def rescale_factors(joints: np.ndarray, base: np.ndarray, types: np.ndarray, bones: list[np.ndarray]) -> np.ndarray:

@@ -106,12 +106,14 @@ def predictions(setup, noise_m, seed=0):
     return predict([tmp / "images"], ckpt, model=oracle)
 
 
-@pytest.mark.parametrize("pooled,refine", [(True, False), (False, False), (True, True)])
+@pytest.mark.parametrize("pooled,refine", [(True, False), (False, False), (True, True), (True, "rays"), (False, "rays")])
 def test_zero_noise_recovers_the_pose_within_a_millimetre_and_a_tenth_of_a_degree(setup, pooled, refine):
     tmp, base, ckpt, q = setup
     preds = predictions(setup, 0.0)
     assert [p["robot_type"] for p in preds] == [ROBOT] * N_IMAGES
-    res = estimate_extrinsics(preds, q, ROBOT, pooled=pooled, refine_2d=refine, camera=Camera.from_dict(base["camera"]))
+    res = estimate_extrinsics(preds, q, ROBOT, pooled=pooled, refine_2d=refine is True,
+                              camera=Camera.from_dict(base["camera"]), refine_rays_depth=refine == "rays")
+    assert res.get("refine_rays", False) == (refine == "rays")
     rot, trans = errors_of(res)
     print(f"zero noise pooled={pooled} refine_2d={refine}: rotation {rot:.2e} deg, translation {trans:.2e} m")
     assert rot < 0.1 and trans < 1e-3
@@ -175,6 +177,20 @@ def test_cli_writes_the_pose_its_inverse_and_the_residuals_as_json(setup, cli, c
     first = res["per_image"][0]
     assert set(first["residuals_m"]) == {"base", *get_robot(ROBOT).joints} and first["inliers"] == 7
     assert "translation" in capsys.readouterr().out
+
+
+def test_refine_rays_and_refine_2d_exclude_each_other(setup, cli, capsys):
+    tmp, base, ckpt, q = setup
+    with pytest.raises(ValueError, match="choose one"):
+        estimate_extrinsics(predictions(setup, 0.0), q, ROBOT, refine_2d=True, refine_rays_depth=True,
+                            camera=Camera.from_dict(base["camera"]))
+    joints = write_joints(tmp / "joints_rays.csv", q, "frame", None)
+    with pytest.raises(SystemExit):
+        cli("--joints", joints, "--refine-rays", "--refine-2d", tmp / "images")
+    assert "not allowed with argument" in capsys.readouterr().err
+    assert cli("--joints", joints, "--refine-rays", "--out", tmp / "rays.json", tmp / "images") == 0
+    rot, trans = errors_of(json.loads((tmp / "rays.json").read_text()))
+    assert rot < 0.1 and trans < 1e-3
 
 
 BAD = [  # (what to do to a good frame-keyed file, text the error must contain)

@@ -47,7 +47,9 @@ def test_dvc_repro_runs_every_stage_and_then_does_nothing(tmp_path, tiny_params)
     assert test["zoom_test"]["all"]["frames"] == test["all"]["frames"]               # evaluate.zoom_test
     assert latency["zoom_batch1_median_ms"] > 0                                     # latency.zoom_test
     table = (work / "results" / "results_table.md").read_text()
-    assert "| recorded | Panda | 8 |" in table and "Jitter reduction" in table and "| tripod | 10 |" in table
+    assert "| recorded | Panda | 8 |" in table and "Jitter reduction" in table
+    assert test["camera_pose"]["fit"] == "rays" and test["camera_pose"]["rigid"]["fit"] == "rigid"  # evaluate.pose_fit
+    assert "| tripod | rigid + rays | 10 |" in table and "| tripod | rigid | 10 |" in table
     assert "## Mirror test" in table
     before = {p.name: p.read_bytes() for p in (work / "data" / "labels").glob("*.npy")}
     out = _sh("dvc repro labels", work)

@@ -143,8 +143,10 @@ def test_camera_pose_section_shows_one_and_pooled_images_per_family():
             "tripod": {"images_pooled": 10, "by_family": {"Panda": {"images_1": one, "images_10": ten}},
                        "all": {"images_1": one, "images_10": ten}}}
     text = "\n".join(camera_pose_section(pose))
-    assert "| UR | synthetic | 1 | 90 |" in text and "| Panda | tripod | 10 | 9 | 1.00 |" in text
-    assert "| Panda | tripod | 1 | 90 | 3.00 |" in text
+    assert "| UR | synthetic | rigid | 1 | 90 |" in text and "| Panda | tripod | rigid | 10 | 9 | 1.00 |" in text
+    assert "| Panda | tripod | rigid | 1 | 90 | 3.00 |" in text and "rigid + rays" not in text.split("|---")[-1]
+    both = "\n".join(camera_pose_section({**pose, "fit": "rays", "rigid": pose}))
+    assert "| UR | synthetic | rigid + rays | 1 | 90 |" in both and "| UR | synthetic | rigid | 1 | 90 |" in both
 
 
 @pytest.mark.parametrize("n", [1, 4])

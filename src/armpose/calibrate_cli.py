@@ -2,8 +2,14 @@
 and the joint encoder readings at those instants (no calibration board).
 
     armpose calibrate --checkpoint PATH --joints JOINTS.csv [--intrinsics cam.json] [--robot NAME]
-                      [--out extrinsics.json] [--refine-2d] [--per-image] [--method huber|ransac|lstsq]
+                      [--out extrinsics.json] [--refine-rays | --refine-2d] [--per-image]
+                      [--method huber|ransac|lstsq]
                       [--threshold-m 0.05] IMAGE_OR_DIR...
+
+``--refine-rays`` refines the robust fit so that each forward-kinematics point lies on the ray of
+its predicted point and near its predicted depth, weighted by the network's typical errors (it
+reads directions far better than depth); the results table ("Camera-to-robot pose") compares it
+with the rigid fit alone. ``--refine-2d`` refines on the pixels alone instead.
 
 JOINTS.csv: a header ``frame`` or ``image``, then one column per joint of the robot (names as
 in ``armpose robots``, any order; radians). With ``frame`` (the recording format's
@@ -50,7 +56,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--intrinsics", type=Path, help="JSON with width, height, fx, fy, cx, cy of your camera")
     ap.add_argument("--robot", help="robot type (default: the type predicted for most images)")
     ap.add_argument("--out", type=Path, help="result JSON (default: stdout)")
-    ap.add_argument("--refine-2d", action="store_true", help="polish the pose on the 2D reprojection error")
+    refine = ap.add_mutually_exclusive_group()
+    refine.add_argument("--refine-rays", action="store_true",
+                        help="refine the pose on the predicted points' rays and depths (each by its typical error)")
+    refine.add_argument("--refine-2d", action="store_true", help="polish the pose on the 2D reprojection error")
     ap.add_argument("--per-image", action="store_true",
                     help="average per-image fits instead of one robust fit of all images' points")
     ap.add_argument("--method", choices=METHODS, default="huber", help="robust fit (default %(default)s)")
@@ -92,7 +101,8 @@ def run(args: argparse.Namespace, errors: list[str]) -> dict:
     robot = args.robot or majority_type(preds)
     angles = table.angles_for(get_robot(robot).joints)[[row_of[p["image"]] for p in preds]]
     result = estimate_extrinsics(preds, angles, robot, pooled=not args.per_image, method=args.method,
-                                 threshold_m=args.threshold_m, refine_2d=args.refine_2d, camera=camera)
+                                 threshold_m=args.threshold_m, refine_2d=args.refine_2d, camera=camera,
+                                 refine_rays_depth=args.refine_rays)
     result["inputs"] = {"checkpoint": str(args.checkpoint), "joints": str(args.joints),
                         "intrinsics": str(args.intrinsics) if args.intrinsics else None, "images": len(images),
                         "robot_from": "--robot" if args.robot else "majority of predicted types",

@@ -11,8 +11,8 @@ pose in the base frame, the Eye-to-Hand transform.
   column per joint, radians), validated strictly: errors name the file, the line and the value;
 - :func:`match_rows`: the table's rows for a list of images (in order, or by image name);
 - :func:`estimate_extrinsics`: one pose from many images (robust fit of all correspondences
-  at once, or the average of per-image fits), optionally refined on the 2D reprojection
-  error, with a residual report per image and per point.
+  at once, or the average of per-image fits), optionally refined on the predicted points'
+  rays and depths or on the 2D reprojection error, with a residual report per image and per point.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from armpose.camera_pose import (pool_poses, refine_reprojection, reprojection_errors_px, robust_rigid,
+from armpose.camera_pose import (pool_poses, refine_rays, refine_reprojection, reprojection_errors_px, robust_rigid,
                                  rotation_error_deg, to_matrix, translation_error_m)
 from armpose.geometry import Camera, invert, matrix_to_quat, quat_to_matrix, transform_points
 from armpose.recording import RecordingError
@@ -251,7 +251,7 @@ def _uv(prediction: dict, points_cam: np.ndarray, camera: Camera | None) -> np.n
 
 def estimate_extrinsics(predictions: Sequence[dict], joint_angles, robot: str, pooled: bool = True,
                         method: str = "huber", threshold_m: float = 0.05, refine_2d: bool = False,
-                        camera: Camera | None = None) -> dict:
+                        camera: Camera | None = None, refine_rays_depth: bool = False) -> dict:
     """``T_cam_base`` of a static camera from ``predictions`` (dicts of :func:`armpose.predict.predict`)
     and the encoder readings ``joint_angles`` ``(N, J)`` (radians, ``robot``'s joint order) at
     the same instants.
@@ -261,7 +261,9 @@ def estimate_extrinsics(predictions: Sequence[dict], joint_angles, robot: str, p
     ``method`` and ``threshold_m`` are those of :func:`~armpose.camera_pose.robust_rigid`.
     ``refine_2d`` polishes the pose on the reprojection error of the inlier points (needs
     ``camera``, the images' intrinsics; pixels: ``joints_uv`` and the projected base).
-    ``camera`` also adds reprojection errors (px) to the report. Images with fewer than 3 finite
+    ``refine_rays_depth`` refines it instead on each inlier point's predicted ray and depth,
+    weighted by the network's typical errors (:func:`~armpose.camera_pose.refine_rays`; no
+    intrinsics needed). ``camera`` also adds reprojection errors (px) to the report. Images with fewer than 3 finite
     points are skipped and listed. Returns a JSON-ready dict (see the CLI ``armpose calibrate``).
     """
     spec = get_robot(robot)
@@ -271,6 +273,8 @@ def estimate_extrinsics(predictions: Sequence[dict], joint_angles, robot: str, p
                          f"{len(predictions)} predictions of {robot}, got {q.shape}")
     if refine_2d and camera is None:
         raise ValueError("refine_2d needs the camera intrinsics")
+    if refine_2d and refine_rays_depth:
+        raise ValueError("refine_2d and refine_rays_depth are two refinements of the same pose; choose one")
     names = ["base", *spec.joints]
     fk = kinematics(robot).joint_positions(q) if len(q) else np.zeros((0, spec.num_joints, 3))
     samples, used, skipped = [], [], []
@@ -291,10 +295,14 @@ def estimate_extrinsics(predictions: Sequence[dict], joint_angles, robot: str, p
         src_all = np.concatenate([s[0] for s in samples])
         uv_all = np.concatenate([u for _, u in used])
         T = refine_reprojection(T, src_all, uv_all, camera.K, valid=np.concatenate(inliers))
+    if refine_rays_depth:
+        T = refine_rays(T, np.concatenate([s[0] for s in samples]), np.concatenate([s[1] for s in samples]),
+                        valid=np.concatenate(inliers))
     per_image = [_image_report(n, T, s[0], s[1], inl, u, camera, a, names)
                  for (n, u), s, inl, a in zip(used, samples, inliers, alone)]
-    return _result(T, per_image, skipped, names, robot, pooled, method, threshold_m, refine_2d,
-                   sum(p.get("robot_type", robot) != robot for p in predictions))
+    out = _result(T, per_image, skipped, names, robot, pooled, method, threshold_m, refine_2d,
+                  sum(p.get("robot_type", robot) != robot for p in predictions))
+    return {**out, "refine_rays": refine_rays_depth} if refine_rays_depth else out
 
 
 def _result(T, per_image, skipped, names, robot, pooled, method, threshold_m, refine_2d, mismatched) -> dict:

@@ -3,7 +3,9 @@
 For every test frame, the network's 3D base and joints (camera optical frame, metres) are
 aligned with the same points from forward kinematics of that frame's joint angles (robot base
 frame) by a robust rigid fit (:func:`armpose.camera_pose.robust_rigid`), giving the pose of the
-robot base in the camera frame, ``T_cam_base``, without any calibration. The truth is the
+robot base in the camera frame, ``T_cam_base``, without any calibration; with ``rays`` the fit
+is refined on each point's ray and, weakly, its depth (:func:`armpose.camera_pose.refine_rays`),
+since the network's rays are far better than its depths. The truth is the
 inverse of the recording's camera pose (``camera_poses.csv``: the optical frame in the base frame).
 
 Reported per family: median rotation error (deg), median translation error (cm), median ADD
@@ -13,7 +15,7 @@ pose) and the ADD AUC at 10 cm.
 Pooling several images needs a static camera, which the synthetic recordings do not have (each
 frame has its own camera); the recorded static-camera (tripod) test recordings have one.
 :func:`pooled_pose_errors` fits one pose to the points of ``images`` frames of such a recording
-at once (:func:`armpose.camera_pose.pool_poses`), the frames spread over the recording
+at once (:func:`fit_pose` of all their points), the frames spread over the recording
 (:func:`spread_chunks`); :func:`camera_pose_metrics` reports, per family, single images on the
 synthetic test set, and single images and pooled images on the same tripod frames.
 """
@@ -25,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from armpose.camera_pose import add_auc, add_m, pool_poses, robust_rigid, rotation_error_deg, translation_error_m
+from armpose.camera_pose import (add_auc, add_m, refine_rays, robust_rigid, rotation_error_deg,
+                                 translation_error_m)
 from armpose.geometry import invert, pose_to_matrix
 from armpose.labels.dataset import SOURCE_CODES
 from armpose.recording import read_joints, read_meta, read_poses
@@ -74,10 +77,18 @@ def pose_errors(T_est: np.ndarray, T_true: np.ndarray, points_base: np.ndarray) 
             float(translation_error_m(T_est[:3, 3], T_true[:3, 3])), float(add_m(T_est, T_true, points_base)))
 
 
+def fit_pose(src: np.ndarray, dst: np.ndarray, threshold_m: float = 0.05, rays: bool = False) -> np.ndarray:
+    """``T_cam_base`` mapping FK points ``src`` onto predicted points ``dst`` (rows of one or more
+    images of one camera): the robust rigid fit (Huber), then with ``rays`` refined on its inliers'
+    rays and depths (:func:`~armpose.camera_pose.refine_rays`)."""
+    est = robust_rigid(src, dst, method="huber", threshold_m=threshold_m)
+    return refine_rays(est.T, src, dst, valid=est.inliers) if rays else est.T
+
+
 def frame_pose_errors(pred: dict, truth: dict, index: dict, arrays: dict, root: Path,
-                      threshold_m: float = 0.05) -> dict[str, np.ndarray]:
+                      threshold_m: float = 0.05, rays: bool = False) -> dict[str, np.ndarray]:
     """Per test frame: ``rot_deg``, ``trans_m``, ``add_m`` of the single-image pose estimate
-    (NaN where the recording cannot be read)."""
+    (:func:`fit_pose`; NaN where the recording cannot be read)."""
     n = len(truth["row"])
     out = {k: np.full(n, np.nan) for k in ("rot_deg", "trans_m", "add_m")}
     recordings = index["recordings"]
@@ -88,8 +99,8 @@ def frame_pose_errors(pred: dict, truth: dict, index: dict, arrays: dict, root: 
         except (OSError, ValueError, KeyError) as err:
             log.warning("pose evaluation skips %s: %s", rec["name"], err)
             continue
-        est = robust_rigid(src, predicted_points(pred, i, len(src)), method="huber", threshold_m=threshold_m)
-        out["rot_deg"][i], out["trans_m"][i], out["add_m"][i] = pose_errors(est.T, T_true, src)
+        T = fit_pose(src, predicted_points(pred, i, len(src)), threshold_m, rays)
+        out["rot_deg"][i], out["trans_m"][i], out["add_m"][i] = pose_errors(T, T_true, src)
     return out
 
 
@@ -105,17 +116,18 @@ def spread_chunks(n: int, images: int) -> list[np.ndarray]:
 
 
 def pooled_errors(points_base: list[np.ndarray], points_cam: list[np.ndarray], T_true: np.ndarray, images: int,
-                  threshold_m: float = 0.05) -> dict[str, np.ndarray]:
+                  threshold_m: float = 0.05, rays: bool = False) -> dict[str, np.ndarray]:
     """Per group of :func:`spread_chunks`: ``rot_deg``, ``trans_m``, ``add_m`` of one pose pooled
-    (:func:`~armpose.camera_pose.pool_poses`, Huber) over the group's frames of a static camera.
+    over the group's frames of a static camera (all their points in one :func:`fit_pose`).
 
     ``points_base[k]`` ``(J+1, 3)`` (base frame) and ``points_cam[k]`` ``(J+1, 3)`` (predictions,
     camera frame) are frame k's points in time order; ``T_true`` is the one ``T_cam_base``. ADD
     averages over all the group's base-frame points."""
     out = {k: [] for k in ("rot_deg", "trans_m", "add_m")}
     for group in spread_chunks(len(points_base), images):
-        est = pool_poses([(points_base[k], points_cam[k], None) for k in group], "huber", threshold_m)
-        errs = pose_errors(est.T, T_true, np.concatenate([points_base[k] for k in group]))
+        src = np.concatenate([points_base[k] for k in group])
+        T = fit_pose(src, np.concatenate([points_cam[k] for k in group]), threshold_m, rays)
+        errs = pose_errors(T, T_true, src)
         for key, value in zip(out, errs):
             out[key].append(value)
     return {k: np.asarray(v, np.float64) for k, v in out.items()}
@@ -133,7 +145,7 @@ def static_recordings(truth: dict, arrays: dict, index: dict) -> dict[int, np.nd
 
 
 def pooled_pose_errors(pred: dict, truth: dict, index: dict, arrays: dict, root: Path, images: int,
-                       threshold_m: float = 0.05) -> dict[int, dict[str, np.ndarray]]:
+                       threshold_m: float = 0.05, rays: bool = False) -> dict[int, dict[str, np.ndarray]]:
     """:func:`pooled_errors` of every static-camera test recording (recording index -> errors)."""
     out = {}
     for r, pos in static_recordings(truth, arrays, index).items():
@@ -145,7 +157,7 @@ def pooled_pose_errors(pred: dict, truth: dict, index: dict, arrays: dict, root:
             continue
         src = [p[0] for p in pts]
         dst = [predicted_points(pred, i, len(s)) for i, s in zip(pos, src)]
-        out[r] = pooled_errors(src, dst, pts[0][1], images, threshold_m)
+        out[r] = pooled_errors(src, dst, pts[0][1], images, threshold_m, rays)
     return out
 
 
@@ -176,23 +188,24 @@ def summarise_pooled(errors: list[dict[str, np.ndarray]], images: int) -> dict:
 
 
 def camera_pose_metrics(pred: dict, truth: dict, index: dict, arrays: dict, root: Path, families: list[str],
-                        images: int = 10) -> dict:
-    """Camera-to-robot pose per family (``families``: one per robot type index).
+                        images: int = 10, rays: bool = False) -> dict:
+    """Camera-to-robot pose per family (``families``: one per robot type index), by :func:`fit_pose`
+    (``fit``: ``"rays"`` with ``rays``, else ``"rigid"``).
 
     ``by_family``/``all``: single images of the synthetic test frames. ``tripod``: on the
     static-camera test recordings, ``images_1`` (single images) and ``images_<images>`` (pooled
     over ``images`` spread frames, :func:`pooled_pose_errors`) on the same frames."""
-    errors = frame_pose_errors(pred, truth, index, arrays, root)
+    errors = frame_pose_errors(pred, truth, index, arrays, root, rays=rays)
     fams = np.array(families)[truth["type"]] if len(truth["type"]) else np.array([], str)
     synthetic = truth["source"] == SOURCE_CODES["synthetic"]
-    out = {"source": "synthetic",
+    out = {"source": "synthetic", "fit": "rays" if rays else "rigid",
            "by_family": {f: summarise_poses(errors, np.flatnonzero(synthetic & (fams == f)))
                          for f in dict.fromkeys(fams[synthetic].tolist())},
            "all": summarise_poses(errors, np.flatnonzero(synthetic))}
     static = static_recordings(truth, arrays, index)
     if not static:
         return out
-    pooled = pooled_pose_errors(pred, truth, index, arrays, root, images)
+    pooled = pooled_pose_errors(pred, truth, index, arrays, root, images, rays=rays)
     rec_family = {r: str(fams[pos[0]]) for r, pos in static.items()}
     tripod = {"images_pooled": images, "by_family": {}}
     for f in [*dict.fromkeys(rec_family.values()), None]:

@@ -115,7 +115,8 @@ def training_minutes(root: Path, stages: list[str]) -> float:
 def recorded_metrics(pred_truth: tuple[dict, dict], data_dir: Path, root: Path, params: dict,
                      camera_pose: bool) -> dict:
     """Camera-to-robot pose per family (single images on the synthetic test set; single and pooled
-    images on the static-camera test recordings; :mod:`armpose.pose_eval`), if ``camera_pose``, and
+    images on the static-camera test recordings; :mod:`armpose.pose_eval`; ``evaluate.pose_fit``
+    rays: also the rigid fit alone, under ``rigid``), if ``camera_pose``, and
     raw against filtered sequence metrics on the recorded test recordings (:mod:`armpose.sequence_eval`)."""
     from armpose.labels.dataset import load_dataset
     from armpose.pose_eval import camera_pose_metrics
@@ -126,8 +127,13 @@ def recorded_metrics(pred_truth: tuple[dict, dict], data_dir: Path, root: Path, 
     out = {"sequence": sequence_metrics(pred, truth, index, arrays, families, float(params["record"]["fps"]),
                                         list(cfg.get("sequence_filters", ["kalman"])))}
     if camera_pose:
-        out["camera_pose"] = camera_pose_metrics(pred, truth, index, arrays, root, families,
-                                                 int(cfg.get("pose_pool_images", 10)))
+        fit = cfg.get("pose_fit", "rigid")
+        if fit not in ("rigid", "rays"):
+            raise ValueError(f"evaluate.pose_fit must be 'rigid' or 'rays', got {fit!r}")
+        images = int(cfg.get("pose_pool_images", 10))
+        out["camera_pose"] = camera_pose_metrics(pred, truth, index, arrays, root, families, images, rays=fit == "rays")
+        if fit == "rays":   # the rigid fit alone, for comparison
+            out["camera_pose"]["rigid"] = camera_pose_metrics(pred, truth, index, arrays, root, families, images)
     return out
 
 
