@@ -10,8 +10,8 @@ moves each point along its own ray to the bone lengths of the predicted type
 ``sigma_bone`` metres, bones shorter than ``min_bone`` not held).
 
 The settings are chosen without the test split: on a seeded draw of 200 training-split frames
-per robot type that the transfer stages never used (the rows outside ``transfer_stage2``'s
-transfer set: UR frames seen only in pretraining, KUKA and Panda frames never seen), the grid
+per robot type that the transfer stages never used (the rows outside both transfer sets: UR
+frames seen only in pretraining, KUKA and Panda frames never seen), the grid
 point with the lowest mean relative change of the six medians (joint and base, three families).
 The chosen settings are then scored on the test split, with the predicted type and with the
 true type (``oracle_type``, to separate the type errors' share). Per robot family: joint and
@@ -37,18 +37,21 @@ from armpose.io import atomic_write_json
 
 from bone_rescale import medians
 
-GRID = {"min_bone": (0.0, 0.05, 0.1), "sigma_bone": (0.01, 0.02, 0.03), "sigma_depth": (0.03, 0.05, 0.1, 0.2)}
+GRID = {"min_bone": (0.0, 0.05, 0.1, 0.15), "sigma_bone": (0.01, 0.02, 0.03, 0.05),
+        "sigma_depth": (0.03, 0.05, 0.1, 0.2)}
 HELD_OUT_PER_TYPE = 200
 
 
 def held_out_rows(data_dir: Path, params: dict) -> np.ndarray:
-    """Training-split rows outside ``transfer_stage2``'s transfer set, at most
-    :data:`HELD_OUT_PER_TYPE` per robot type (seeded by ``base.seed``)."""
-    base, cfg = params["base"], params["transfer_stage2"]
+    """Training-split rows outside the transfer sets of ``transfer_stage1`` and ``transfer_stage2``,
+    at most :data:`HELD_OUT_PER_TYPE` per robot type (seeded by ``base.seed``). UR rows among them
+    were pretraining data: the network has seen them, so errors there are, if anything, smaller."""
+    base = params["base"]
     types, seed = list(base["robot_types"]), int(base["seed"])
     arrays, _ = load_dataset(data_dir)
-    used = transfer_set(arrays, "train", [types.index(r) for r in cfg["robots"]], cfg["per_type"],
-                        seed + int(cfg.get("seed_offset", 0)))
+    used = np.concatenate([transfer_set(arrays, "train", [types.index(r) for r in cfg["robots"]], cfg["per_type"],
+                                        seed + int(cfg.get("seed_offset", 0)))
+                           for cfg in (params["transfer_stage1"], params["transfer_stage2"])])
     rows = np.setdiff1d(split_indices(arrays, "train"), used)
     robot = np.asarray(arrays["robot"])[rows]
     rng = np.random.default_rng(seed)
@@ -63,6 +66,8 @@ def mean_relative_change(before: dict, after: dict) -> float:
 
 
 def scored(pred: dict, truth: dict, types: list[str], settings: dict, oracle: bool = False) -> dict:
+    """Per-family joint and base medians (cm) after :func:`bone_fit` with ``settings``, using the
+    predicted type, or the true one with ``oracle``."""
     families = family_of(types)
     names = list(dict.fromkeys(families))
     joints, base = bone_fit(pred["joints"], pred["base"], truth["type"] if oracle else pred["type"], types,

@@ -59,10 +59,11 @@ def objective(points, net, L, sigma_depth, sigma_bone=0.01):
     return (((d - L) / sigma_bone) ** 2).sum(-1) + ((np.log(points[..., 2] / net[..., 2]) / sigma_depth) ** 2).sum(-1)
 
 
-def test_the_global_minimum_is_found_where_a_bone_must_flip():
+def test_the_grid_minimum_is_found_where_a_bone_must_flip():
     """Three points (two bones) with large depth errors, so that bones may have to flip between
     pointing towards and away from the camera: the fit reaches the minimum of a brute-force
-    search over all three depths, which a descent from the network's depths often does not."""
+    search over all three depths (on the grid the search uses), which a descent from the
+    network's depths often does not."""
     pts = skeletons("ur10", 40, seed=3)[:, 2:5]                 # joints 2-4: bones of 0.64 and 0.57 m
     rng = np.random.default_rng(4)
     net = pts * (1 + rng.normal(0, 0.15, (len(pts), 3, 1)))
@@ -109,9 +110,21 @@ def test_bad_sigma_is_named(value):
         fit_depths(pts, L, np.ones_like(L, bool), sigma_depth=value)
 
 
+def test_a_non_finite_point_is_returned_as_given_and_the_rest_still_fit():
+    pts = skeletons("ur5", 6, seed=7)
+    net = pts * 1.04
+    net[2, 3] = np.nan                                    # one joint of frame 2 missing
+    L = np.tile(bone_lengths("ur5"), (len(pts), 1))
+    fitted = fit_depths(net, L, np.ones_like(L, bool), sigma_depth=0.1)
+    assert np.isnan(fitted[2, 3]).all() and np.isfinite(np.delete(fitted, 3, axis=1)).all()
+    np.testing.assert_allclose(fitted[0], fit_depths(net[:1], L[:1], np.ones_like(L[:1], bool), sigma_depth=0.1)[0])
+
+
 def test_mismatched_shapes_are_refused():
     with pytest.raises(ValueError, match="do not match"):
         fit_depths(np.ones((2, 7, 3)), np.ones((2, 7)), np.ones((2, 7), bool), sigma_depth=0.1)
+    with pytest.raises(ValueError, match="bone_valid"):
+        fit_depths(np.ones((2, 7, 3)), np.ones((2, 6)), np.ones((2, 5), bool), sigma_depth=0.1)
 
 
 def test_bones_below_min_bone_are_not_held():

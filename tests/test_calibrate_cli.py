@@ -113,7 +113,7 @@ def test_zero_noise_recovers_the_pose_within_a_millimetre_and_a_tenth_of_a_degre
     assert [p["robot_type"] for p in preds] == [ROBOT] * N_IMAGES
     res = estimate_extrinsics(preds, q, ROBOT, pooled=pooled, refine_2d=refine is True,
                               camera=Camera.from_dict(base["camera"]), refine_rays_depth=refine == "rays")
-    assert res.get("refine_rays", False) == (refine == "rays")
+    assert res["refine_rays"] == (refine == "rays")
     rot, trans = errors_of(res)
     print(f"zero noise pooled={pooled} refine_2d={refine}: rotation {rot:.2e} deg, translation {trans:.2e} m")
     assert rot < 0.1 and trans < 1e-3

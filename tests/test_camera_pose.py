@@ -312,11 +312,26 @@ def test_refine_rays_beats_the_rigid_fit_on_network_like_errors(arm):
     assert np.median(rot["rays"]) < 0.7 * np.median(rot["rigid"]), {k: np.median(v) for k, v in rot.items()}
 
 
+def test_refine_rays_ignores_a_gross_outlier_marked_invalid(arm):
+    points, poses = arm
+    seen = transform_points(poses[1], points[1])
+    seen[3] += [0.5, -0.4, 1.0]
+    start = cp.robust_rigid(points[1], observe(poses[1], points[1], 0.03, 5)).T
+    valid = np.ones(7, dtype=bool)
+    valid[3] = False
+    rot, trans = errors(cp.refine_rays(start, points[1], seen, valid), poses[1])
+    assert rot < 1e-3 and trans < 1e-5
+    rot_all, trans_all = errors(cp.refine_rays(start, points[1], seen), poses[1])
+    assert rot_all > 0.1 or trans_all > 1e-3                 # the outlier, when used, does move it
+
+
 def test_refine_rays_leaves_the_pose_with_too_few_points_and_names_bad_sigmas(arm):
     points, poses = arm
     valid = np.zeros(7, dtype=bool)
     valid[:2] = True
     seen = transform_points(poses[0], points[0])
     np.testing.assert_array_equal(cp.refine_rays(np.eye(4), points[0], seen, valid), np.eye(4))
-    with pytest.raises(ValueError, match="sigma_ray must be positive, got 0.0"):
+    with pytest.raises(ValueError, match="sigma_ray must be a positive number, got 0.0"):
         cp.refine_rays(poses[0], points[0], seen, sigma_ray=0.0)
+    with pytest.raises(ValueError, match="sigma_log_depth must be a positive number, got '0.1'"):
+        cp.refine_rays(poses[0], points[0], seen, sigma_log_depth="0.1")

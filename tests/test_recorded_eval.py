@@ -147,6 +147,7 @@ def test_camera_pose_section_shows_one_and_pooled_images_per_family():
     assert "| Panda | tripod | rigid | 1 | 90 | 3.00 |" in text and "rigid + rays" not in text.split("|---")[-1]
     both = "\n".join(camera_pose_section({**pose, "fit": "rays", "rigid": pose}))
     assert "| UR | synthetic | rigid + rays | 1 | 90 |" in both and "| UR | synthetic | rigid | 1 | 90 |" in both
+    assert both.index("| rigid + rays |") < both.index("| synthetic | rigid |")     # the evaluated fit first
 
 
 @pytest.mark.parametrize("n", [1, 4])

@@ -94,27 +94,36 @@ def fit_depths(points: np.ndarray, bones: np.ndarray, bone_valid: np.ndarray, si
                sigma_bone: float = 0.01, iters: int = 20, search: bool = True) -> np.ndarray:
     """Move each of ``points`` (N, K, 3; point 0 the base, then the joints; metres, camera frame)
     along its ray so that point b lies ``bones[:, b-1]`` from point b-1 wherever
-    ``bone_valid[:, b-1]`` (both (N, K-1)); a point no valid bone touches keeps its depth.
+    ``bone_valid[:, b-1]`` (both (N, K-1)); a point no valid bone touches keeps its depth, and a
+    non-finite point is returned as given (the bones touching it are not held).
     A grid search by dynamic programming along the chain (depths within a factor
-    exp(+-``SEARCH_HALF_RANGE``) of the network's) finds the global minimum's neighbourhood, which
-    a local method misses when a bone has to flip towards or away from the camera (``search``
-    False: start at the network's depths instead); then Levenberg-Marquardt in log depth, a
-    damping per frame, ``iters`` iterations. Returns the moved points (N, K, 3); their projections equal those of
-    ``points``."""
+    exp(+-``SEARCH_HALF_RANGE``) of the network's) finds the grid's best depths, near the global
+    minimum, which a local method misses when a bone has to flip towards or away from the camera
+    (``search`` False: start at the network's depths instead); then Levenberg-Marquardt in log
+    depth, a damping per frame, ``iters`` iterations. Returns the moved points (N, K, 3); their
+    projections equal those of ``points`` (depths below ``MIN_DEPTH_M`` are first raised to it)."""
     check_sigmas(sigma_depth, sigma_bone)
-    p = torch.as_tensor(np.asarray(points), dtype=torch.float64)
-    bones = np.asarray(bones)
-    if p.ndim != 3 or p.shape[-1] != 3 or bones.shape != (p.shape[0], p.shape[1] - 1):
-        raise ValueError(f"fit_depths: points {tuple(p.shape)} and bones {tuple(bones.shape)} do not match")
+    points = np.asarray(points, np.float64)
+    bones, bone_valid = np.asarray(bones, np.float64), np.asarray(bone_valid, bool)
+    if points.ndim != 3 or points.shape[-1] != 3 or bones.shape != (len(points), points.shape[1] - 1) \
+            or bone_valid.shape != bones.shape:
+        raise ValueError(f"fit_depths: points {points.shape}, bones {bones.shape} and bone_valid "
+                         f"{bone_valid.shape} do not match")
+    finite = np.isfinite(points).all(-1)
+    bone_valid = bone_valid & finite[:, 1:] & finite[:, :-1]
+    p = torch.as_tensor(np.where(finite[..., None], points, [0.0, 0.0, 1.0]))
     z_net = p[..., 2].clamp_min(MIN_DEPTH_M)
     rays = p / z_net[..., None]
     rays[..., 2] = 1.0
     u_net = torch.log(z_net)
-    args = (u_net, rays, torch.as_tensor(bones, dtype=torch.float64),
-            torch.as_tensor(bone_valid, dtype=torch.float64), sigma_depth, sigma_bone)
-    u = u_net.clone() if not search or not len(u_net) else torch.cat([_chain_search(u_net[i:i + CHUNK], rays[i:i + CHUNK], *[a[i:i + CHUNK] for a in args[2:4]],
-                                 sigma_depth, sigma_bone, SEARCH_HALF_RANGE, SEARCH_GRID)
-                   for i in range(0, len(u_net), CHUNK)])
+    args = (u_net, rays, torch.as_tensor(bones), torch.as_tensor(bone_valid, dtype=torch.float64),
+            sigma_depth, sigma_bone)
+    if search and len(u_net):
+        u = torch.cat([_chain_search(u_net[i:i + CHUNK], rays[i:i + CHUNK], args[2][i:i + CHUNK], args[3][i:i + CHUNK],
+                                     sigma_depth, sigma_bone, SEARCH_HALF_RANGE, SEARCH_GRID)
+                       for i in range(0, len(u_net), CHUNK)])
+    else:
+        u = u_net.clone()
     damping = torch.full((len(u),), 1e-3, dtype=torch.float64)
     for _ in range(iters):
         r, jac = _residuals(u, *args, jacobian=True)
@@ -127,7 +136,7 @@ def fit_depths(points: np.ndarray, bones: np.ndarray, bone_valid: np.ndarray, si
         better = (_residuals(trial, *args, jacobian=False)[0] ** 2).sum(1) < cost
         u = torch.where(better[:, None], trial, u)
         damping = torch.where(better, damping / 3, damping * 4).clamp(1e-9, 1e9)
-    return (torch.exp(u)[..., None] * rays).numpy()
+    return np.where(finite[..., None], (torch.exp(u)[..., None] * rays).numpy(), points)
 
 
 def bone_fit(joints: np.ndarray, base: np.ndarray, types: np.ndarray, robot_types: list[str],

@@ -315,8 +315,9 @@ def refine_reprojection(T, points_base, uv, K, valid=None, dist_coeffs=None) -> 
     return to_matrix(cv2.Rodrigues(rvec)[0], tvec.ravel())
 
 
-RAY_SIGMA = 0.02          # rad: the network's median ray error on held-out training frames (README)
-LOG_DEPTH_SIGMA = 0.06    # its median relative depth error on the same frames
+RAY_SIGMA = 0.02          # normalised image coordinates (~rad): the network's median ray error on
+LOG_DEPTH_SIGMA = 0.06    # held-out training frames, and its median |log depth error| on the same
+                          # frames (python benchmarks/pose_fit_sigmas.py, results/pose_fit_sigmas.json)
 
 
 def refine_rays(T, points_base, points_cam, valid=None, sigma_ray: float = RAY_SIGMA,
@@ -333,8 +334,8 @@ def refine_rays(T, points_base, points_cam, valid=None, sigma_ray: float = RAY_S
     valid points in front of the camera (predicted and at ``T``); with fewer, ``T`` is returned."""
     from scipy.optimize import least_squares
     for name, value in (("sigma_ray", sigma_ray), ("sigma_log_depth", sigma_log_depth)):
-        if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"refine_rays: {name} must be positive, got {value!r}")
+        if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+            raise ValueError(f"refine_rays: {name} must be a positive number, got {value!r}")
     T = np.asarray(T, dtype=np.float64)
     if T.shape != (4, 4):
         raise ValueError(f"T must have shape (4, 4), got {T.shape}")

@@ -263,7 +263,10 @@ def estimate_extrinsics(predictions: Sequence[dict], joint_angles, robot: str, p
     ``camera``, the images' intrinsics; pixels: ``joints_uv`` and the projected base).
     ``refine_rays_depth`` refines it instead on each inlier point's predicted ray and depth,
     weighted by the network's typical errors (:func:`~armpose.camera_pose.refine_rays`; no
-    intrinsics needed). ``camera`` also adds reprojection errors (px) to the report. Images with fewer than 3 finite
+    intrinsics needed). Either refinement fits all images' inlier points at once, also when
+    ``pooled`` is False; the inliers, ``rmse_m`` and the per-point residuals stay those of the
+    robust 3D fit, measured at the final pose. ``camera`` also adds reprojection errors (px) to
+    the report. Images with fewer than 3 finite
     points are skipped and listed. Returns a JSON-ready dict (see the CLI ``armpose calibrate``).
     """
     spec = get_robot(robot)
@@ -300,12 +303,12 @@ def estimate_extrinsics(predictions: Sequence[dict], joint_angles, robot: str, p
                         valid=np.concatenate(inliers))
     per_image = [_image_report(n, T, s[0], s[1], inl, u, camera, a, names)
                  for (n, u), s, inl, a in zip(used, samples, inliers, alone)]
-    out = _result(T, per_image, skipped, names, robot, pooled, method, threshold_m, refine_2d,
-                  sum(p.get("robot_type", robot) != robot for p in predictions))
-    return {**out, "refine_rays": refine_rays_depth} if refine_rays_depth else out
+    return _result(T, per_image, skipped, names, robot, pooled, method, threshold_m, refine_2d, refine_rays_depth,
+                   sum(p.get("robot_type", robot) != robot for p in predictions))
 
 
-def _result(T, per_image, skipped, names, robot, pooled, method, threshold_m, refine_2d, mismatched) -> dict:
+def _result(T, per_image, skipped, names, robot, pooled, method, threshold_m, refine_2d, refine_rays_depth,
+            mismatched) -> dict:
     """The JSON-ready result: pose, inverse, summary and residual report."""
     res = np.array([[r["residuals_m"][n] if r["residuals_m"][n] is not None else np.nan for n in names]
                     for r in per_image])
@@ -313,6 +316,7 @@ def _result(T, per_image, skipped, names, robot, pooled, method, threshold_m, re
     per_point = {n: {"median_m": _round(np.nanmedian(res[:, j])) if np.isfinite(res[:, j]).any() else None,
                      "inlier_fraction": _round(inl[:, j].mean(), 4)} for j, n in enumerate(names)}
     out = {"robot": robot, "method": method, "threshold_m": threshold_m, "pooled": pooled, "refine_2d": refine_2d,
+           "refine_rays": refine_rays_depth,
            "T_cam_base": T.tolist(), **pose_json(T), "T_base_cam": invert(T).tolist(),
            **pose_json(invert(T), "T_base_cam_")}
     out.update({"rmse_m": _round(np.sqrt(np.mean(res[inl] ** 2))) if inl.any() else None,

@@ -15,6 +15,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Mapping
 
+from armpose.camera_pose import LOG_DEPTH_SIGMA, RAY_SIGMA
+
 PAPER_TABLE_II = {
     "UR": {"mask_accuracy": 0.970, "type_accuracy": 0.975, "joint_median_cm": 3.12, "base_median_cm": 2.42},
     "KUKA": {"mask_accuracy": 0.977, "type_accuracy": 1.000, "joint_median_cm": 3.30, "base_median_cm": 2.36},
@@ -204,8 +206,9 @@ def camera_pose_section(pose: Mapping) -> list[str]:
            "The predicted base and joints aligned with forward kinematics of the joint encoders: the Eye-to-Hand "
            "transform without a calibration. Fit *rigid*: a robust (Huber) rigid fit of the 3D points. "
            "*rigid + rays*: that fit refined so that each forward-kinematics point lies on the ray of its "
-           "predicted point (to 0.02 rad) and near its predicted depth (to 6 %), the network's typical errors "
-           "on held-out training frames (`armpose.camera_pose.refine_rays`, `evaluate.pose_fit`). Synthetic: every "
+           f"predicted point (to {RAY_SIGMA:g} rad) and near its predicted depth (to {100 * LOG_DEPTH_SIGMA:g} %), "
+           "the network's median errors on held-out training frames (`armpose.camera_pose.refine_rays`, "
+           "`evaluate.pose_fit`). Synthetic: every "
            "test frame has its own camera, so one image per estimate. Tripod: the static-camera test recordings, "
            "one image per estimate, and one estimate pooled over N frames spread over the recording.", "",
            "| Family | data | fit | images | estimates | rotation median deg | translation median cm | ADD median cm "

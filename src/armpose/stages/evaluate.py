@@ -126,10 +126,10 @@ def recorded_metrics(pred_truth: tuple[dict, dict], data_dir: Path, root: Path, 
     cfg, families = params["evaluate"], family_of(list(params["base"]["robot_types"]))
     out = {"sequence": sequence_metrics(pred, truth, index, arrays, families, float(params["record"]["fps"]),
                                         list(cfg.get("sequence_filters", ["kalman"])))}
+    fit = cfg.get("pose_fit", "rigid")
+    if fit not in ("rigid", "rays"):
+        raise ValueError(f"evaluate.pose_fit must be 'rigid' or 'rays', got {fit!r}")
     if camera_pose:
-        fit = cfg.get("pose_fit", "rigid")
-        if fit not in ("rigid", "rays"):
-            raise ValueError(f"evaluate.pose_fit must be 'rigid' or 'rays', got {fit!r}")
         images = int(cfg.get("pose_pool_images", 10))
         out["camera_pose"] = camera_pose_metrics(pred, truth, index, arrays, root, families, images, rays=fit == "rays")
         if fit == "rays":   # the rigid fit alone, for comparison
