@@ -14,18 +14,15 @@ Positions are metres in the camera optical frame.
 """
 from __future__ import annotations
 
-import argparse
 import json
-import logging
-from pathlib import Path
 
 import numpy as np
-import torch
 
 from armpose.bone_fit import bone_lengths
-from armpose.config import project_root
-from armpose.evaluate import family_of, load_model, predict_split
+from armpose.evaluate import family_of, predict_split
 from armpose.io import atomic_write_json
+
+from checkpoint_cli import load_checkpoint_from_cli
 
 MIN_BONE_M = 0.05
 
@@ -54,15 +51,7 @@ def medians(joints, base, truth, families, names) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("checkpoint", nargs="?", type=Path, default=Path("models/transfer_stage2/model.pt"))
-    ap.add_argument("--out", type=Path)
-    ap.add_argument("--threads", type=int, default=2)
-    args = ap.parse_args()
-    logging.basicConfig(level=logging.WARNING)
-    root = project_root()
-    torch.set_num_threads(args.threads)
-    model, config = load_model(root / args.checkpoint)
+    args, root, model, config = load_checkpoint_from_cli(__doc__)
     types = list(config["base"]["robot_types"])
     families = family_of(types)
     names = list(dict.fromkeys(families))

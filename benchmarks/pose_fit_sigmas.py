@@ -12,19 +12,16 @@ and compares them with the constants in the code. Written to ``--out`` as JSON (
 """
 from __future__ import annotations
 
-import argparse
 import json
-import logging
-from pathlib import Path
 
 import numpy as np
-import torch
 
 from armpose.camera_pose import LOG_DEPTH_SIGMA, RAY_SIGMA
-from armpose.config import load_params, project_root
-from armpose.evaluate import family_of, load_model, predict_split
+from armpose.config import load_params
+from armpose.evaluate import family_of, predict_split
 from armpose.io import atomic_write_json
 
+from checkpoint_cli import load_checkpoint_from_cli
 from ray_bone_fit import held_out_rows
 
 
@@ -41,15 +38,7 @@ def point_errors(pred: dict, truth: dict) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("checkpoint", nargs="?", type=Path, default=Path("models/transfer_stage2/model.pt"))
-    ap.add_argument("--out", type=Path)
-    ap.add_argument("--threads", type=int, default=2)
-    args = ap.parse_args()
-    logging.basicConfig(level=logging.WARNING)
-    root = project_root()
-    torch.set_num_threads(args.threads)
-    model, config = load_model(root / args.checkpoint)
+    args, root, model, config = load_checkpoint_from_cli(__doc__)
     data_dir = root / "data" / "labels"
     pred, truth = predict_split(model, data_dir, "train", rows=held_out_rows(data_dir, load_params(root / "params.yaml")))
     ray, depth, frame = point_errors(pred, truth)

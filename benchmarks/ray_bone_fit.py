@@ -20,22 +20,20 @@ metres in the camera optical frame.
 """
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
-import logging
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from armpose.bone_fit import bone_fit
-from armpose.config import load_params, project_root
+from armpose.config import load_params
 from armpose.data import load_dataset, split_indices, transfer_set
-from armpose.evaluate import family_of, load_model, predict_split
+from armpose.evaluate import family_of, predict_split
 from armpose.io import atomic_write_json
 
 from bone_rescale import medians
+from checkpoint_cli import load_checkpoint_from_cli
 
 GRID = {"min_bone": (0.0, 0.05, 0.1, 0.15), "sigma_bone": (0.01, 0.02, 0.03, 0.05),
         "sigma_depth": (0.03, 0.05, 0.1, 0.2)}
@@ -76,15 +74,7 @@ def scored(pred: dict, truth: dict, types: list[str], settings: dict, oracle: bo
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("checkpoint", nargs="?", type=Path, default=Path("models/transfer_stage2/model.pt"))
-    ap.add_argument("--out", type=Path)
-    ap.add_argument("--threads", type=int, default=2)
-    args = ap.parse_args()
-    logging.basicConfig(level=logging.WARNING)
-    root = project_root()
-    torch.set_num_threads(args.threads)
-    model, config = load_model(root / args.checkpoint)
+    args, root, model, config = load_checkpoint_from_cli(__doc__)
     types = list(config["base"]["robot_types"])
     families = family_of(types)
     names = list(dict.fromkeys(families))

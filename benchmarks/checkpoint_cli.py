@@ -1,0 +1,27 @@
+"""The command line that the post-hoc checkpoint benchmarks share (``bone_rescale.py``,
+``ray_bone_fit.py``, ``pose_fit_sigmas.py``): ``[CHECKPOINT] [--out FILE] [--threads N]``."""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+import torch
+
+from armpose.config import project_root
+from armpose.evaluate import load_model
+
+
+def load_checkpoint_from_cli(doc: str) -> tuple[argparse.Namespace, Path, torch.nn.Module, dict]:
+    """Parse the shared arguments (help text ``doc``), set the torch threads and load the
+    checkpoint (default: the two-stage transfer model). Returns ``(args, root, model, config)``."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", nargs="?", type=Path, default=Path("models/transfer_stage2/model.pt"))
+    ap.add_argument("--out", type=Path, help="also write the JSON here (atomically)")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    root = project_root()
+    torch.set_num_threads(args.threads)
+    model, config = load_model(root / args.checkpoint)
+    return args, root, model, config
