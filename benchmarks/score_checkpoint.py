@@ -1,6 +1,6 @@
 """Test-split scores of any checkpoints, for A/B comparisons of a stage's settings.
 
-    python benchmarks/score_checkpoint.py CHECKPOINT [CHECKPOINT ...] [--families UR] [--mirror] [--out FILE]
+    python benchmarks/score_checkpoint.py CHECKPOINT [CHECKPOINT ...] [--families UR] [--mirror] [--zoom] [--out FILE]
 
 Scores each checkpoint on the test split of ``data/labels`` with the ``evaluate`` stage's
 metrics (:func:`armpose.evaluate.evaluate_checkpoint`) and prints, per robot family and per
@@ -8,7 +8,8 @@ robot type of those families: frames, median joint and base error (cm), type and
 A pretraining checkpoint has only seen UR robots, so compare those with ``--families UR``.
 To score the checkpoint of another commit's settings, check that commit out and run its
 stage (``dvc repro pretrain``) first; the dataset must be the same for the scores to compare.
-``--mirror`` adds the scores of the mirror test (``mirror_test``, :mod:`armpose.mirror_test`).
+``--mirror`` adds the scores of the mirror test (``mirror_test``, :mod:`armpose.mirror_test`),
+``--zoom`` those of the zoom test (``zoom_test``, :mod:`armpose.zoom_test`).
 ``--out`` also writes the scores as JSON (atomically).
 """
 from __future__ import annotations
@@ -44,6 +45,7 @@ def main() -> None:
     ap.add_argument("checkpoints", nargs="+", type=Path)
     ap.add_argument("--families", nargs="+", default=["UR", "KUKA", "Panda"])
     ap.add_argument("--mirror", action="store_true", help="also score the mirror test")
+    ap.add_argument("--zoom", action="store_true", help="also score the zoom test")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -52,10 +54,11 @@ def main() -> None:
     torch.set_num_threads(int(base.get("threads", 2)))
     out = {}
     for ckpt in args.checkpoints:
-        metrics, _, _ = evaluate_checkpoint(ckpt, root / "data" / "labels", base, mirror=args.mirror)
+        metrics, _, _ = evaluate_checkpoint(ckpt, root / "data" / "labels", base, mirror=args.mirror, zoom=args.zoom)
         out[str(ckpt)] = scores(metrics, args.families, list(base["robot_types"]))
-        if args.mirror:
-            out[str(ckpt)]["mirror_test"] = pick(metrics["mirror_test"]["by_family"], args.families)
+        for flag, name in ((args.mirror, "mirror_test"), (args.zoom, "zoom_test")):
+            if flag:
+                out[str(ckpt)][name] = scores(metrics[name], args.families, list(base["robot_types"]))
         print(ckpt, json.dumps(out[str(ckpt)], indent=1))
     if args.out:
         atomic_write_json(args.out, out)

@@ -129,14 +129,15 @@ if "mirror_test" in metrics["transfer"]["test"]:
 # ## The zoom test
 #
 # The robot fills a few percent of the frame, so its type and outline rest on few pixels. With
-# `evaluate.zoom_test`, the transfer model takes a second look: the frame magnified (up to
-# `evaluate.max_zoom`) about the box of the first pass's joints, the box centre moved to the
-# principal point. The second pass's joints and base are mapped back through the magnified
-# camera (depth times the magnification: the apparent size), its mask logits warped back, and
-# everything is averaged with the first pass (`armpose.zoom_test`, `armpose predict --zoom`).
-# It costs one more forward pass (`latency.zoom_test` times it). The stored test frames are
-# already at the network's 256x212, so the magnified frame has no new detail, only a larger
-# robot for the network's stride-8 maps; `armpose predict --zoom` magnifies the network input
+# `evaluate.zoom_test`, the transfer model takes a second look: the camera turned to the centre
+# of the box of the first pass's joints (an exact homography) and moved along its axis until
+# the box spans most of the frame (a dolly, up to the training's `augment.zoom.max_zoom`). The
+# training stages drew that view for half their frames, with the labels moved the same way,
+# so the second look is in distribution; its joints and base are mapped back by the inverse
+# of the labels' transform, its mask logits warped back (`armpose.zoom_test`, `armpose predict
+# --zoom`). It costs one more forward pass (`latency.zoom_test` times it). The stored test
+# frames are already at the network's 256x212, so the view has no new detail, only a larger
+# robot for the network's stride-8 maps; `armpose predict --zoom` works on the network input
 # in the same way.
 
 # %%

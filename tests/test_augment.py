@@ -94,3 +94,35 @@ def test_dolly_leaves_unused_slots_and_is_off_without_the_key():
     moved = dolly_points(pts, 1.1, 2.0)
     assert np.array_equal(moved[1], pts[1])
     assert np.isclose(moved[0, 2], 2.0 / 1.1) and np.allclose(moved[0, :2], pts[0, :2])
+
+
+def test_zoom_config_fills_defaults_and_names_bad_values():
+    from armpose.augment import ZOOM_DEFAULTS, zoom_config
+    assert zoom_config({}) is None and zoom_config({"zoom": {"p": 0.0}}) is None
+    assert zoom_config({"zoom": {"p": 0.3}}) == {**ZOOM_DEFAULTS, "p": 0.3}
+    for bad in ({"p": 0.5, "fill": [0.8, 0.4]}, {"p": 1.5}, {"p": 0.5, "max_zoom": 0.5}, {"p": 0.5, "size": 3}, 0.5):
+        with pytest.raises(ValueError, match="zoom"):
+            zoom_config({"zoom": bad})
+
+
+def test_draw_zoom_centres_the_jittered_box_and_scales_within_its_limits():
+    from armpose.augment import depth_limit, draw_zoom, draw_zoom_scale, points_box
+    pts = np.array([[0.3, 0.2, 2.0], [0.5, -0.1, 2.3], [0.35, 0.0, 1.9], [0.45, 0.1, 2.1]])
+    cfg = {"zoom": {"p": 1.0, "fill": [0.5, 0.7], "max_zoom": 2.5, "centre_jitter": 0.0, "scale_jitter": 0.0}}
+    M, zcfg = draw_zoom(np.random.default_rng(0), cfg, pts, K, (W, H))
+    centre, _ = points_box(pts, K)
+    ray = np.array([(centre[0] - K[2]) / K[0], (centre[1] - K[3]) / K[1], 1.0])
+    np.testing.assert_allclose(project((M @ ray)[None])[0], K[2:], atol=1e-9)
+    turned = rotate_points(pts, M)
+    for seed in range(5):
+        s = draw_zoom_scale(np.random.default_rng(seed), zcfg, turned, K, (W, H), dolly=0.15)
+        _, extent = points_box(dolly_points(turned, s, turned[:, 2].mean()), K)
+        assert 0.5 - 1e-6 <= max(extent[0] / W, extent[1] / H) <= 0.7 + 1e-6
+    assert draw_zoom(np.random.default_rng(0), {"zoom": {"p": 1e-9}}, pts, K, (W, H)) is None
+    # a robot pointing at the camera: the dolly stops with its nearest point at a quarter of the new depth
+    deep = np.array([[0.0, 0.0, 0.8], [0.01, 0.0, 2.0], [0.0, 0.01, 3.2]])
+    limit = depth_limit(deep)
+    s = draw_zoom_scale(np.random.default_rng(0), {**zcfg, "max_zoom": 10.0}, deep, K, (W, H), dolly=0.15)
+    assert s == pytest.approx(limit)
+    moved = dolly_points(deep, s, deep[:, 2].mean())
+    assert moved[:, 2].min() == pytest.approx(0.25 * moved[:, 2].mean())

@@ -95,15 +95,21 @@ def test_figures_render_with_agg():
         assert buf.getvalue()[:4] == b"\x89PNG"
 
 
-def test_augmentation_figure_shows_labels_that_follow_the_warp(tiny_project):
-    """On real renders: after a camera turn, mirror and dolly, the projected joints still sit
-    on the (warped) robot mask, and the figure holds the stored frame plus one per epoch."""
+ZOOM = {"p": 1.0, "fill": [0.55, 0.85], "max_zoom": 2.5, "centre_jitter": 0.0, "scale_jitter": 0.0}
+
+
+@pytest.mark.parametrize("zoom", [None, ZOOM])
+def test_augmentation_figure_shows_labels_that_follow_the_warp(tiny_project, zoom):
+    """On real renders: after a camera turn, mirror and dolly (or a zoom to the robot), the
+    projected joints still sit on the (warped) robot mask, and the figure holds the stored
+    frame plus one per epoch. A zoom without jitter centres the labels' box and fills the frame."""
     import cv2
+    from armpose.augment import points_box
     from armpose.data import LabelledFrames
 
     root, _ = tiny_project
     data = root / "data" / "labels"
-    augment = {"flip": 0.5, "rotate_deg": 5.0, "roll_deg": 8.0, "dolly": 0.15}
+    augment = {"flip": 0.5, "rotate_deg": 5.0, "roll_deg": 8.0, "dolly": 0.15, "zoom": zoom}
     rows = [0, 5]
     images, titles = viz.augmented_samples(data, rows, augment, seed=1, epochs=2)
     assert len(images) == len(titles) == 6 and "as stored" in titles[0] and "epoch 1" in titles[2]
@@ -117,6 +123,11 @@ def test_augmentation_figure_shows_labels_that_follow_the_warp(tiny_project):
             h, w = mask.shape
             inside = (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
             on_robot += list(mask[np.round(uv[inside, 1]).astype(int), np.round(uv[inside, 0]).astype(int)])
+            if zoom:
+                points = np.vstack([item["base"].numpy()[None], item["joints"].numpy()[item["joint_valid"].numpy()]])
+                centre, extent = points_box(points, item["intrinsics"].numpy())
+                assert np.abs(centre - item["intrinsics"].numpy()[2:]).max() < 0.1 * extent.max()
+                assert max(extent[0] / w, extent[1] / h) < 0.9
     assert len(on_robot) > 50 and np.mean(on_robot) > 0.9
     assert isinstance(viz.augmentation_figure(data, rows, augment, epochs=1), Figure)
 

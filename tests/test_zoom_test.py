@@ -1,11 +1,13 @@
-"""The zoom test (armpose.zoom_test): magnification, mapping back, and an oracle end to end."""
+"""The zoom test (armpose.zoom_test): the second look's view, mapping back, and an oracle end to end."""
 import numpy as np
 import pytest
 import torch
 
 from armpose.report import option_section
-from armpose.zoom_test import (camera_columns, check_max_zoom, forward_with_zoom, magnify, unmagnify, unzoom_points,
-                               zoom_average, zoom_for_points, zoom_refine)
+from armpose.augment import dolly_points, points_box, rotate_points
+from armpose.zoom_test import (DEFAULT_SETTINGS, TRAINED_WEIGHT, camera_rows, check_max_zoom, forward_with_zoom,
+                               settings_from_config, unwarp_maps, unzoom_points, warp_images, zoom_combine,
+                               zoom_refine, zoom_views)
 
 W, H = 256, 212
 CAM = (309.5, 309.2, 128.0, 105.5)
@@ -49,103 +51,121 @@ class BallOracle(torch.nn.Module):
                 "mask_logits": images[:, :1] * 8 - 4}
 
 
-def test_magnify_moves_pixel_p_to_k_p_plus_t():
-    img = torch.zeros(1, 1, H, W)
-    img[0, 0, 60, 90] = 1.0
-    k, t = torch.tensor([1.5]), torch.tensor([[-20.0, 10.0]])
-    out = magnify(img, k, t)[0, 0]
-    # centroid of the spike, spread over neighbours by the bilinear resampling
-    yy, xx = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
-    cu, cv = float((out * xx).sum() / out.sum()), float((out * yy).sum() / out.sum())
-    assert cu == pytest.approx(1.5 * 90 - 20, abs=0.05) and cv == pytest.approx(1.5 * 60 + 10, abs=0.05)
+ONE = {"fill": 0.6, "max_zoom": 3.0, "weight": 1.0}   # the second look alone
 
 
-def test_unmagnify_inverts_magnify_where_covered():
-    img = torch.rand(2, 1, H, W)
-    k, t = torch.tensor([1.0, 1.4]), torch.tensor([[0.0, 0.0], [-30.0, -20.0]])
-    back, covered = unmagnify(magnify(img, k, t), k, t)
-    assert covered[0].all()
-    torch.testing.assert_close(back[0], img[0], atol=1e-4, rtol=0)
-    inner = covered[1, 0].clone()
-    inner[:2], inner[-2:], inner[:, :2], inner[:, -2:] = False, False, False, False
-    assert 0.3 < covered[1].float().mean() < 0.8
-    # bilinear twice blurs: compare with a smooth image instead of noise
-    smooth = torch.linspace(0, 1, W)[None, None, None].expand(1, 1, H, W).contiguous()
-    b2, c2 = unmagnify(magnify(smooth, k[1:], t[1:]), k[1:], t[1:])
-    err = (b2 - smooth).abs()[c2 & inner[None, None]]
-    assert float(err.max()) < 1e-3
+def random_views(rng, n):
+    """n (turn, scale) pairs of the kind the zoom test makes: a rotation of up to ~15 degrees, scale 1-3."""
+    turns = []
+    for _ in range(n):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        a = rng.uniform(0, np.radians(15))
+        Kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        turns.append(np.eye(3) + np.sin(a) * Kx + (1 - np.cos(a)) * Kx @ Kx)
+    return np.stack(turns), rng.uniform(1.0, 3.0, n)
 
 
-def test_unzoom_points_inverts_the_magnified_camera():
+def test_unzoom_points_inverts_the_training_labels_transform():
+    """Training labels of a zoomed view are rotate_points then dolly_points about the joints' mean
+    depth; unzoom_points with the view's own mean joint depth gives back the original points."""
     rng = np.random.default_rng(0)
-    pts = torch.from_numpy(np.column_stack([rng.uniform(-0.4, 0.4, 5), rng.uniform(-0.3, 0.3, 5),
-                                            rng.uniform(1.0, 3.0, 5)]))[None]
-    k, t = torch.tensor([1.3], dtype=torch.float64), torch.tensor([[-12.0, 7.5]], dtype=torch.float64)
-    fx, fy, cx, cy = CAM
-    # what a correct network sees: pixel k p + t, depth z / k, read through its own camera
-    u = k * (fx * pts[..., 0] / pts[..., 2] + cx) + t[:, :1]
-    v = k * (fy * pts[..., 1] / pts[..., 2] + cy) + t[:, 1:]
-    zn = pts[..., 2] / k
-    net = torch.stack([(u - cx) / fx * zn, (v - cy) / fy * zn, zn], -1)
-    torch.testing.assert_close(unzoom_points(net, k, t, CAM), pts)
+    turns, scales = random_views(rng, 4)
+    pts = np.column_stack([rng.uniform(-0.6, 0.6, (4 * 8, 2)), rng.uniform(2.0, 2.8, 4 * 8)]).reshape(4, 8, 3)
+    viewed, z_ref_after = [], []
+    for p, M, s in zip(pts, turns, scales):
+        turned = rotate_points(p, M)
+        v = dolly_points(turned, s, turned[:7, 2].mean())         # slots 0-6 joints, 7 the base
+        viewed.append(v)
+        z_ref_after.append(v[:7, 2].mean())
+    back = unzoom_points(torch.tensor(np.stack(viewed)), turns, scales, np.array(z_ref_after))
+    np.testing.assert_allclose(back.numpy(), pts, atol=1e-9)
 
 
-def test_zoom_for_points_centres_the_box_and_respects_the_limits():
-    near = torch.tensor([[[0.0, 0.0, 2.0], [0.1, 0.05, 2.0]]])         # small: capped at max_zoom
-    far = torch.tensor([[[-0.8, -0.6, 1.0], [0.8, 0.6, 1.0]]])        # fills the frame: k = 1
-    k, t = zoom_for_points(torch.cat([near, far]), CAM, (W, H), max_zoom=1.5)
-    assert k.tolist() == pytest.approx([1.5, 1.0])
-    centre = (project(near[0, 0].numpy()) + project(near[0, 1].numpy())) / 2
-    assert (k[0] * torch.tensor(centre, dtype=torch.float32) + t[0]).tolist() == pytest.approx([CAM[2], CAM[3]], abs=1e-3)
-    with pytest.raises(ValueError, match="max_zoom"):
-        zoom_for_points(near, CAM, (W, H), max_zoom=0.5)
-    with pytest.raises(ValueError, match="camera"):
-        camera_columns(torch.zeros(3, 4), 2, near)
-
-
-def test_identity_zoom_gives_back_the_single_pass():
-    single = {"joints": torch.tensor([[[0.1, -0.2, 2.0]]]), "base": torch.tensor([[0.0, 0.1, 2.2]]),
-              "type_logits": torch.tensor([[2.0, 0.0, 0.0, 0.0, 0.0]]), "mask_logits": torch.randn(1, 1, H, W)}
-    out = zoom_average(single, single, torch.ones(1), torch.zeros(1, 2), CAM)
-    torch.testing.assert_close(out["joints"], single["joints"])
-    torch.testing.assert_close(out["base"], single["base"])
-    torch.testing.assert_close(out["type_logits"].softmax(-1), single["type_logits"].softmax(-1))
-    torch.testing.assert_close(out["mask_logits"], single["mask_logits"], atol=2e-4, rtol=0)
-
-
-@pytest.mark.parametrize("point", [(0.25, -0.15, 2.4), (-0.5, 0.3, 1.6)])
-def test_oracle_on_a_magnified_frame_maps_back_to_the_truth(point):
-    """A correct network on the magnified frame, mapped back, gives the true position: the
-    zoom test's geometry is exact (to the oracle's pixel-area precision)."""
-    p = np.array(point)
-    images = ball_image(p[None])
-    single, avg = forward_with_zoom(BallOracle(), images, CAM, max_zoom=1.5)
-    truth = torch.tensor(point, dtype=torch.float32)
-    torch.testing.assert_close(single["base"][0], truth, atol=0.03, rtol=0)
-    torch.testing.assert_close(avg["base"][0], truth, atol=0.03, rtol=0)
-    torch.testing.assert_close(avg["joints"][0, 3], truth, atol=0.03, rtol=0)
-    # the magnified pass alone: undo the averaging
-    zoomed_alone = 2 * avg["base"][0] - single["base"][0]
-    torch.testing.assert_close(zoomed_alone, truth, atol=0.03, rtol=0)
-    assert avg["mask_logits"].shape == (1, 1, H, W)
-
-
-def test_per_frame_cameras_and_the_valid_points_decide_each_frame_s_box():
-    pts = torch.tensor([[[0.0, 0.0, 2.0], [0.1, 0.05, 2.0], [3.0, 2.0, 2.0]]] * 2)
-    cams = torch.tensor([CAM, (CAM[0] * 2, CAM[1] * 2, CAM[2], CAM[3])])
-    valid = torch.tensor([[True, True, False], [True, True, False]])       # slot 3: an unused joint slot
-    k, t = zoom_for_points(pts, cams, (W, H), max_zoom=10.0, valid=valid)
-    assert float(k[1]) < float(k[0]) - 1                                 # twice the focal length: a box twice as big
-    for row in range(2):                                                 # each box centre lands on its principal point
-        cam = tuple(float(c) for c in cams[row])
-        centre = (project(pts[row, 0].numpy(), cam) + project(pts[row, 1].numpy(), cam)) / 2
-        assert (k[row] * torch.tensor(centre, dtype=torch.float32) + t[row]).tolist() == pytest.approx(
-            [CAM[2], CAM[3]], abs=1e-3)
-    k_all, _ = zoom_for_points(pts, cams, (W, H), max_zoom=10.0)
-    assert (k_all < k).all()                                             # the far slot would have widened the box
+def test_zoom_views_centre_the_box_and_make_it_fill_the_frame():
+    cams = camera_rows(CAM, 3)
+    pts = np.array([[[0.1, -0.5, 2.0], [0.7, 0.3, 2.2], [0.4, 0.0, 2.1]],      # off-centre: fill 0.6
+                    [[0.0, 0.0, 2.0], [0.01, 0.01, 2.0], [0.0, 0.01, 2.0]],    # tiny: capped at max_zoom
+                    [[-1.2, -0.8, 2.0], [1.2, 0.8, 2.0], [0.0, 0.0, 2.0]]])    # fills the frame: never shrunk
+    valid = np.ones((3, 3), bool)
+    turns, scales = zoom_views(pts, valid, cams, (W, H), 0.6, 2.5)
+    assert scales[1] == 2.5 and scales[2] == 1.0 and 1.0 < scales[0] < 2.5
+    centre, _ = points_box(pts[0], CAM)                                        # the ray through the box centre ...
+    ray = np.array([(centre[0] - CAM[2]) / CAM[0], (centre[1] - CAM[3]) / CAM[1], 1.0])
+    np.testing.assert_allclose(project(turns[0] @ ray, CAM), [CAM[2], CAM[3]], atol=1e-9)   # ... is the new axis
+    turned = rotate_points(pts[0], turns[0])
+    viewed = dolly_points(turned, scales[0], turned[:, 2].mean())
+    _, extent_after = points_box(viewed, CAM)
+    assert max(extent_after[0] / W, extent_after[1] / H) == pytest.approx(0.6, abs=1e-6)
     for bad in (0.5, "2", True):
         with pytest.raises(ValueError, match="max_zoom"):
             check_max_zoom(bad)
+    with pytest.raises(ValueError, match="camera"):
+        camera_rows(np.zeros((3, 4)), 2)
+
+
+def test_warped_maps_come_back_where_the_view_covers_them():
+    rng = np.random.default_rng(1)
+    yy, xx = np.mgrid[0:H, 0:W]
+    smooth = torch.tensor(np.sin(xx / 17.0) + np.cos(yy / 11.0), dtype=torch.float32)[None, None].repeat(2, 1, 1, 1)
+    turns, scales = random_views(rng, 2)
+    cams = camera_rows(CAM, 2)
+    views = warp_images(smooth, turns, scales, cams)
+    back, covered = unwarp_maps(views, turns, scales, cams)
+    inner = covered.clone()
+    inner[..., :3, :] = inner[..., -3:, :] = inner[..., :, :3] = inner[..., :, -3:] = False
+    assert covered.float().mean() > 0.1
+    err = (back - smooth).abs()[inner & (torch.roll(covered, 3, -1) & torch.roll(covered, -3, -1)
+                                         & torch.roll(covered, 3, -2) & torch.roll(covered, -3, -2))]
+    assert float(err.max()) < 0.05                                             # bilinear twice on a smooth map
+
+
+@pytest.mark.parametrize("point", [(0.25, -0.15, 2.4), (-0.5, 0.3, 1.6)])
+def test_oracle_on_the_second_look_maps_back_to_the_truth(point):
+    """A correct network on the turned, dollied view, mapped back, gives the true position: the
+    zoom test's geometry is exact (to the oracle's pixel-area precision)."""
+    p = np.array(point)
+    images = ball_image(p[None])
+    single, zoomed = forward_with_zoom(BallOracle(), images, CAM, ONE)
+    truth = torch.tensor(point, dtype=torch.float32)
+    torch.testing.assert_close(single["base"][0], truth, atol=0.03, rtol=0)
+    # 4 % of the depth: the test image draws each ball as a disc of radius f R / z wherever it is,
+    # not as a sphere's projection, so turning the camera to it changes its area a little
+    torch.testing.assert_close(zoomed["base"][0], truth, atol=0.04 * p[2], rtol=0)
+    torch.testing.assert_close(zoomed["joints"][0, 3], truth, atol=0.04 * p[2], rtol=0)
+    assert zoomed["mask_logits"].shape == (1, 1, H, W)
+
+
+def test_identity_view_and_weights_combine_as_a_weighted_mean():
+    single = {"joints": torch.tensor([[[0.1, -0.2, 2.0]] * 7]), "base": torch.tensor([[0.0, 0.1, 2.2]]),
+              "type_logits": torch.tensor([[2.0, 0.0, 0.0, 0.0, 0.0]]), "mask_logits": torch.randn(1, 1, H, W)}
+    other = {"joints": single["joints"] + 0.1, "base": single["base"] + 0.1,
+             "type_logits": torch.tensor([[0.0, 2.0, 0.0, 0.0, 0.0]]), "mask_logits": single["mask_logits"]}
+    eye, one = np.eye(3)[None], np.ones(1)
+    same = zoom_combine(single, single, eye, one, camera_rows(CAM, 1), weight=0.5)
+    torch.testing.assert_close(same["joints"], single["joints"])
+    torch.testing.assert_close(same["mask_logits"], single["mask_logits"], atol=1e-5, rtol=0)
+    mixed = zoom_combine(single, other, eye, one, camera_rows(CAM, 1), weight=0.25)
+    torch.testing.assert_close(mixed["base"], single["base"] + 0.025)
+    probs = 0.75 * single["type_logits"].softmax(-1) + 0.25 * other["type_logits"].softmax(-1)
+    torch.testing.assert_close(mixed["type_logits"].softmax(-1), probs)
+
+
+def test_second_look_mask_logits_are_moved_to_the_first_pass_offset():
+    """At scale s the robot's share of the view is s^2 times the first pass's; the class-balanced
+    loss offsets the logits by log((1 - pi) / pi), so the second look's are shifted to match."""
+    first = torch.full((1, 1, H, W), -5.0)
+    first[..., 90:110, 110:140] = 5.0                                          # 600 px robot
+    pi = 600 / (H * W)
+    single = {"joints": torch.tensor([[[0.0, 0.0, 2.0]] * 7]), "base": torch.tensor([[0.0, 0.0, 2.0]]),
+              "type_logits": torch.zeros(1, 5), "mask_logits": first}
+    zoomed = {**single, "mask_logits": torch.zeros(1, 1, H, W)}
+    out = zoom_combine(single, zoomed, np.eye(3)[None], np.array([2.0]), camera_rows(CAM, 1), 0.0, weight=1.0)
+    pi2 = 4 * pi
+    expected = np.log((1 - pi) / pi) - np.log((1 - pi2) / pi2)
+    centre = out["mask_logits"][0, 0, 100, 128]
+    assert float(centre) == pytest.approx(expected, rel=1e-4)
+    assert float(out["mask_logits"][0, 0, 2, 2]) == -5.0                     # outside the view: the first pass
 
 
 def test_zoom_refine_with_joint_counts_ignores_the_unused_slot():
@@ -155,8 +175,19 @@ def test_zoom_refine_with_joint_counts_ignores_the_unused_slot():
     single = oracle(images)
     single["joints"][:, 6] = torch.tensor([5.0, 5.0, 2.0])               # slot 7, unused by a 6-joint robot
     single["type_logits"][:, 0] = 5.0                                    # predicted type 0: 6 joints
-    avg = zoom_refine(oracle, images, single, CAM, max_zoom=1.5, joint_counts=[6, 6, 6, 7, 7])
-    torch.testing.assert_close(avg["base"][0], torch.tensor(p, dtype=torch.float32), atol=0.03, rtol=0)
+    out = zoom_refine(oracle, images, single, CAM, ONE, joint_counts=[6, 6, 6, 7, 7])
+    torch.testing.assert_close(out["base"][0], torch.tensor(p, dtype=torch.float32), atol=0.02 * p[2], rtol=0)
+
+
+def test_settings_come_from_the_checkpoint_s_training_config():
+    assert settings_from_config({}) == DEFAULT_SETTINGS
+    cfg = {"cfg": {"augment": {"flip": 0.5, "zoom": {"p": 0.5, "fill": [0.5, 0.8], "max_zoom": 2.0}}}}
+    st = settings_from_config(cfg)
+    assert st == {"fill": pytest.approx(0.65), "max_zoom": 2.0, "weight": TRAINED_WEIGHT}
+    off = {"cfg": {"augment": {"zoom": {"p": 0.0}}}}
+    assert settings_from_config(off) == DEFAULT_SETTINGS
+    with pytest.raises(ValueError, match="zoom"):
+        settings_from_config({"cfg": {"augment": {"zoom": {"p": 0.5, "fill": [0.9, 0.2]}}}})
 
 
 def test_report_section_lists_single_and_zoom_per_family():

@@ -25,14 +25,15 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 from torch.utils.data.distributed import DistributedSampler
 
-from armpose.augment import GEOMETRIC_KEYS, dolly_points, draw_dolly, draw_rotation, rotate_points, warp
+from armpose.augment import (GEOMETRIC_KEYS, dolly_points, draw_dolly, draw_rotation, draw_zoom, draw_zoom_scale,
+                             rotate_points, warp, zoom_config)
 from armpose.labels.dataset import load_dataset
 
 log = logging.getLogger(__name__)
 
 SPLITS = {"train": 0, "test": 1}
 DEFAULT_AUGMENT = {"brightness": 0.25, "contrast": 0.25, "saturation": 0.25, "noise": 0.02,
-                   "flip": 0.0, "rotate_deg": 0.0, "roll_deg": 0.0, "dolly": 0.0}
+                   "flip": 0.0, "rotate_deg": 0.0, "roll_deg": 0.0, "dolly": 0.0, "zoom": None}
 _GRAY = np.array([0.299, 0.587, 0.114], np.float32)
 
 
@@ -50,9 +51,11 @@ class LabelledFrames(Dataset):
     deviation drawn from [0, ``noise``]. ``flip``, ``rotate_deg`` and ``roll_deg`` add a virtual
     turn of the camera (:mod:`armpose.augment`), which warps image and mask and rotates joints
     and base so the labels stay exact; ``dolly`` then moves the camera along its axis (image
-    scaled, joints, base and ``distance`` moved to match, see :mod:`armpose.augment`). The
-    draws come from a generator seeded by (``seed``, row, epoch); the geometric ones from a
-    second stream, so the photometric draws do not change.
+    scaled, joints, base and ``distance`` moved to match, see :mod:`armpose.augment`);
+    ``zoom`` (a mapping) sometimes turns the camera to the robot and dollies in until it fills
+    the frame, the view of the zoom test's second look. The draws come from a generator
+    seeded by (``seed``, row, epoch); the geometric ones from a second stream and the zoom's
+    from a third, so the photometric draws do not change.
 
     The memory-mapped arrays are opened on first use in each process and never pickled, so
     the dataset is safe in ``DataLoader`` workers started by fork or spawn.
@@ -70,6 +73,7 @@ class LabelledFrames(Dataset):
         if unknown:
             raise ValueError(f"unknown augmentation keys {sorted(unknown)}; known: {sorted(DEFAULT_AUGMENT)}")
         self.augment = dict(augment) if augment else None
+        zoom_config(self.augment or {})   # a bad zoom setting fails here, naming the value
         self.seed = int(seed)
         self.epoch = 0
         self._arrays, self._pid = arrays, os.getpid()
@@ -131,9 +135,16 @@ class LabelledFrames(Dataset):
         """Labels and pixels after the virtual camera turn and dolly drawn for (row, epoch):
         ``(joints, base, image, mask, distance)``, the mask as bool."""
         rng = np.random.default_rng([self.seed, row, epoch, 1])
-        M = draw_rotation(rng, self.augment, intrinsics, image.shape[1])
+        size = (image.shape[1], image.shape[0])
+        points = np.vstack([base[None], joints[valid]])
+        zoom = draw_zoom(np.random.default_rng([self.seed, row, epoch, 2]), self.augment, points, intrinsics, size)
+        M = draw_rotation(rng, self.augment, intrinsics, image.shape[1], pan_tilt=zoom is None)
         scale = draw_dolly(rng, self.augment)
         M = np.eye(3) if M is None else M
+        if zoom is not None:
+            M = M @ zoom[0]
+            scale = draw_zoom_scale(np.random.default_rng([self.seed, row, epoch, 3]), zoom[1],
+                                    rotate_points(points, M), intrinsics, size, float(self.augment.get("dolly", 0.0)))
         image, mask = warp(image, mask.astype(np.uint8), M, intrinsics, 1.0 if scale is None else scale)
         joints, base = rotate_points(joints, M), rotate_points(base, M)
         if scale is not None:

@@ -22,7 +22,7 @@ from armpose.mirror_test import forward_with_mirror
 from armpose.model import predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint, load_model, to_channels_last  # noqa: F401 (load_model re-exported)
-from armpose.zoom_test import check_max_zoom, zoom_refine
+from armpose.zoom_test import settings_from_config, zoom_refine
 
 log = logging.getLogger(__name__)
 
@@ -30,20 +30,20 @@ log = logging.getLogger(__name__)
 @torch.no_grad()
 def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 32,
                   device: torch.device | str = "cpu", rows: np.ndarray | None = None,
-                  mirror: bool = False, zoom: bool = False, max_zoom: float = 1.5) -> tuple[dict, dict]:
+                  mirror: bool = False, zoom: bool = False, zoom_settings: dict | None = None) -> tuple[dict, dict]:
     """``(pred, truth)`` dicts of per-frame numpy arrays over ``rows`` (default: every frame of
     ``split``). ``pred``: joints, base, type, type_probs, mask_counts; ``truth``: joints,
     joint_valid, base, type, intrinsics, distance, source, recording, row. With ``mirror``,
     ``pred["mirror"]`` holds the same keys for the mirror test (:mod:`armpose.mirror_test`),
     from the same forward passes; with ``zoom``, ``pred["zoom"]`` those of the zoom test
-    (:mod:`armpose.zoom_test`, magnification up to ``max_zoom``: one more pass per batch; scored
-    on the single pass, without the mirror, even when ``mirror`` is on)."""
+    (:mod:`armpose.zoom_test` with ``zoom_settings``: one more pass per batch; scored on the
+    single pass, without the mirror, even when ``mirror`` is on)."""
     arrays, _ = load_dataset(Path(data_dir))
     rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
     frames = LabelledFrames(Path(data_dir), rows)
     single, averaged, zoomed = _Collected(), _Collected(), _Collected()
     if zoom:
-        max_zoom = check_max_zoom(max_zoom)
+        threshold = float(getattr(model, "mask_threshold", 0.0))
         joint_counts = [get_robot(t).num_joints for t in frames.robot_types]
     for start in tqdm(range(0, len(frames), batch_size), desc="evaluate", unit="batch", dynamic_ncols=True):
         items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
@@ -57,7 +57,7 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
             out = model(to_channels_last(images))
         single.add(model, out, masks)
         if zoom:
-            zoomed.add(model, zoom_refine(model, images, out, intrinsics, max_zoom, joint_counts=joint_counts), masks)
+            zoomed.add(model, zoom_refine(model, images, out, intrinsics, zoom_settings, joint_counts, threshold), masks)
     pred = single.arrays()
     if mirror:
         pred["mirror"] = averaged.arrays()
@@ -130,14 +130,15 @@ def pixel_scale_of(base: dict) -> float:
 
 def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str = "test",
                         batch_size: int = 32, device: str = "cpu", mirror: bool = False,
-                        zoom: bool = False, max_zoom: float = 1.5) -> tuple[dict, dict, dict]:
+                        zoom: bool = False) -> tuple[dict, dict, dict]:
     """``(metrics, pred, truth)`` of one checkpoint on ``split``; with ``mirror``, also
     ``metrics["mirror_test"]``: the ``all`` and ``by_family`` metrics of the mirror test
     (:mod:`armpose.mirror_test`), and ``pred["mirror"]`` its predictions; with ``zoom``,
-    ``metrics["zoom_test"]`` and ``pred["zoom"]`` likewise for the zoom test (:mod:`armpose.zoom_test`)."""
-    model, _ = load_model(checkpoint, device)
+    ``metrics["zoom_test"]`` and ``pred["zoom"]`` likewise for the zoom test (:mod:`armpose.zoom_test`,
+    its settings from the checkpoint's config)."""
+    model, config = load_model(checkpoint, device)
     pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror, zoom=zoom,
-                                max_zoom=max_zoom)
+                                zoom_settings=settings_from_config(config))
     metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base))
     for key, name in (("mirror", "mirror_test"), ("zoom", "zoom_test")):
         if key in pred:

@@ -31,7 +31,7 @@ from armpose.io import atomic_write_bytes
 from armpose.model import predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint
-from armpose.zoom_test import check_max_zoom, zoom_refine
+from armpose.zoom_test import settings_from_config, zoom_refine
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
@@ -100,7 +100,7 @@ class Predictor:
     """A loaded network plus its camera, robot types and joint counts."""
 
     def __init__(self, checkpoint: Path | str, device: str = "cpu", model=None, mirror: bool = False,
-                 zoom: bool = False, max_zoom: float = 1.5):
+                 zoom: bool = False):
         from armpose.evaluate import load_model
         ckpt_path = Path(checkpoint)
         if model is None:
@@ -111,7 +111,7 @@ class Predictor:
         else:
             config = load_checkpoint(ckpt_path)["config"]
         self.model, self.device, self.mirror, self.zoom = model, device, mirror, zoom
-        self.max_zoom = check_max_zoom(max_zoom)
+        self.zoom_settings = settings_from_config(config)
         self.base = config["base"]
         self.types = list(self.base["robot_types"])
         self.net = network_camera(self.base)
@@ -137,7 +137,8 @@ class Predictor:
         out = self.forward(x)
         if self.zoom:
             net = (self.net.fx, self.net.fy, self.net.cx, self.net.cy)
-            out = zoom_refine(self.forward, x, out, net, self.max_zoom, joint_counts=self.num_joints)
+            out = zoom_refine(self.forward, x, out, net, self.zoom_settings, self.num_joints,
+                              float(getattr(self.model, "mask_threshold", 0.0)))
         latency = 1000 * (time.perf_counter() - t)
         probs = out["type_logits"][0].float().softmax(-1).cpu().numpy()
         k = int(probs.argmax())
@@ -172,18 +173,18 @@ def write_mask(mask: np.ndarray, folder: Path, stem: str) -> Path:
 
 def predict(images: Sequence[str | Path], checkpoint: Path | str, intrinsics: Camera | str | Path | None = None,
             masks: Path | None = None, device: str = "cpu", errors: list | None = None, model=None,
-            mirror: bool = False, zoom: bool = False, max_zoom: float = 1.5) -> list[dict]:
+            mirror: bool = False, zoom: bool = False) -> list[dict]:
     """One result dict per readable image (schema in the module docstring).
 
     ``intrinsics``: a :class:`Camera` or a JSON path; ``None`` means the canonical camera of the
     checkpoint's params. Files that fail are skipped with a warning; pass a list as ``errors``
     to collect their messages. ``model`` replaces the checkpoint's network (tests use an oracle).
     ``mirror``: average with the network's outputs on the mirrored image (:mod:`armpose.mirror_test`;
-    two images a forward pass, included in ``latency_ms``). ``zoom``: average with a second pass on
-    the network input magnified up to ``max_zoom`` about the robot (:mod:`armpose.zoom_test`; one
-    more forward pass, included in ``latency_ms``).
+    two images a forward pass, included in ``latency_ms``). ``zoom``: a second look from the camera
+    turned to the robot and moved closer (:mod:`armpose.zoom_test`, settings from the checkpoint;
+    one more forward pass, included in ``latency_ms``).
     """
-    predictor = Predictor(checkpoint, device, model=model, mirror=mirror, zoom=zoom, max_zoom=max_zoom)
+    predictor = Predictor(checkpoint, device, model=model, mirror=mirror, zoom=zoom)
     camera = load_intrinsics(Path(intrinsics)) if isinstance(intrinsics, (str, Path)) else intrinsics
     results = []
     for path in expand_inputs(images):

@@ -12,9 +12,10 @@ naming it; the others are still processed, and the exit status is 1 if any faile
 ``--mirror`` runs each image together with its horizontal mirror and averages the two
 estimates (:mod:`armpose.mirror_test`): two images a forward pass, for a more accurate
 estimate; ``results/results_table.md`` ("Mirror test") gives both accuracies and latencies.
-``--zoom`` takes a second look at the network input magnified (up to 1.5x) about the robot
-found by the first, and averages the two (:mod:`armpose.zoom_test`): one more forward pass;
-"Zoom test" in the results table gives its accuracy and latency. Both may be given.
+``--zoom`` takes a second look at the robot found by the first pass, from a camera turned to
+it and moved closer (:mod:`armpose.zoom_test`; a network trained with ``augment.zoom`` has seen
+such views, and its second look replaces the first): one more forward pass; "Zoom test" in
+the results table gives its accuracy and latency. Both may be given.
 
 ``--sequence`` treats the inputs as consecutive frames (folders sorted by file name, videos
 read with OpenCV, frame k of ``clip.avi`` named ``clip.avi#k``) and smooths the 3D outputs
@@ -103,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--overlays", default=None, help="folder for images with the predictions drawn")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--mirror", action="store_true", help="average with the mirrored image's estimate (2 images a forward)")
-    ap.add_argument("--zoom", action="store_true", help="average with a second pass on the input magnified about the robot")
+    ap.add_argument("--zoom", action="store_true", help="a second look from a camera turned to the robot and moved closer")
     ap.add_argument("--sequence", action="store_true", help="inputs are consecutive frames (folders, videos)")
     ap.add_argument("--filter", choices=FILTERS, help="causal smoothing of --sequence (default kalman)")
     ap.add_argument("--rate-hz", type=float, help="frames per second of --sequence (default: the video's, else 30)")

@@ -127,9 +127,10 @@ PASS_OPTIONS = {
                     "`armpose predict --mirror`: the image and its horizontal mirror in one batch, the mirrored "
                     "outputs mapped back and averaged (`armpose.mirror_test`)."),
     "zoom_test": ("Zoom test", "zoom",
-                  "`armpose predict --zoom`: a second pass on the image magnified (up to `evaluate.max_zoom`) "
-                  "about the box of the first pass's joints, its outputs mapped back and averaged with the "
-                  "first pass's (`armpose.zoom_test`)."),
+                  "`armpose predict --zoom`: a second look at the robot found by the first pass, from a camera "
+                  "turned to it and moved closer until its box spans most of the frame, the view the network was "
+                  "trained on in half its steps (`augment.zoom`); its outputs mapped back "
+                  "(`armpose.zoom_test`)."),
 }
 
 

@@ -25,7 +25,7 @@ import torch.distributed as dist
 from tqdm import tqdm
 
 from armpose import distill
-from armpose.features import CachedFeatureFrames, batch_features, cache_trunk_features, trunk_is_frozen
+from armpose.features import batch_features, cache_trunk_features, trunk_is_frozen
 from armpose.data import (InfiniteBatches, LabelledFrames, foreground_fraction, make_loader, transfer_set,
                           validation_subset)
 from armpose.io import atomic_write_bytes
@@ -290,7 +290,7 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     low_res = check_stage_low_res(stage, cfg, cached)
     cache_s = time.perf_counter()
     if cached:  # the trunk never changes in this run: compute its features once
-        train_ds = CachedFeatureFrames(train_ds, cache_trunk_features(model, train_ds, device, disable_bar=not master))
+        train_ds = cache_trunk_features(model, train_ds, device, disable_bar=not master)
     cache_s = time.perf_counter() - cache_s
     loader = make_loader(train_ds, bs, shuffle=True, seed=seed, num_workers=0 if cached else int(cfg.get("num_workers", 1)),
                          drop_last=True, distributed=world > 1)

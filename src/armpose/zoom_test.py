@@ -1,50 +1,57 @@
-"""Zoom test: a second look at the robot, magnified, mapped back and averaged with the first.
+"""Zoom test: a second look at the robot, from a camera turned to it and moved closer.
 
-The robot covers a median 3-8 % of a frame (section V of the paper: 5-22 %), so the network
-reads its type and outline from few pixels. The zoom test takes the first pass's estimate of
-where the robot is (the box of its projected joints and base, grown by ``margin`` on each
-side), magnifies the network input about that box's centre by ``k = min(W / box_w, H / box_h)``
-clipped to ``[1, max_zoom]``, puts the box centre on the principal point, and runs the
-network again. The second pass's outputs are mapped back to the original image's camera and
-averaged with the first pass's: joints, base and type probabilities everywhere, mask logits
-where the magnified image covers the pixel (the first pass's alone elsewhere). ``armpose
-predict --zoom`` uses it, and the ``evaluate`` stage reports it next to the single pass
-(``evaluate.zoom_test``).
+The robot's box (its projected base and joints) spans a median 44 % of a 256x212 frame's width
+or height, but the robot itself is thin: a median 3-8 % of the pixels (section V of the paper:
+5-22 %). The zoom test takes the first pass's estimate of where the robot is, turns the
+camera to look at the centre of that box (a rotation about the optical centre: an exact
+homography of the image) and dollies it in until the box spans ``fill`` of the frame (image
+scale ``s``, clipped to ``[1, max_zoom]``), and runs the network again on that view. It is the
+view a training stage's ``augment.zoom`` draws (:mod:`armpose.augment`), so a network trained
+with it reads the second look in distribution; the settings (``fill``, the middle of the
+training range, and ``max_zoom``) come from the checkpoint's own config
+(:func:`settings_from_config`).
 
-Geometry (pixels of the network input; network camera ``fx, fy, cx, cy``; positions in
-metres, camera optical frame: x right, y down, z forward). The magnified image maps pixel
-``p`` of the input to ``p' = k p + t`` with ``t = c - k m`` (``c = (cx, cy)``, ``m`` the box
-centre): it is the image of a camera with focal lengths ``k fx, k fy`` and principal point
-``k c + t``. The network reads it as if taken by its own camera, so a point it predicts at
-``(x', y', z')`` lies on the magnified image's pixel ``(fx x'/z' + cx, fy y'/z' + cy)``,
-whose true ray follows from the magnified camera; its apparent size is ``k`` times the
-original's, so its depth is ``k z'`` (the depth that apparent size gives). Hence::
+Mapping back (metres, camera optical frame: x right, y down, z forward; pixels of the network
+input, intrinsics ``fx, fy, cx, cy``): the second look's points are those of the dollied,
+turned camera, so :func:`armpose.augment.undolly_points` with the view's scale and the mean
+depth of the second look's joints (the labels' reference depth), then the transposed turn,
+give them in the original camera: exactly the inverse of the training labels' transform. Its
+mask logits are warped back by the inverse homography. The result is a weighted mean,
+``weight`` on the second look: joints, base and type probabilities everywhere, mask logits
+where the second look's view covers the pixel (the first pass's alone elsewhere).
 
-    z = k z',   x = (fx x'/z' + cx - k cx - t_x) z / (k fx),   y likewise.
+The mask logits of a view are offset by its robot share (the class-balanced mask loss weights
+each image by its own foreground fraction, :mod:`armpose.losses`): before averaging, the second
+look's logits are moved to the first pass's offset, ``log((1 - pi) / pi)`` with ``pi`` the
+first pass's predicted foreground share, ``s**2`` times that in the second look's view.
 
-``k = 1`` and ``t = 0`` give back the first pass exactly; where the box fills the frame, ``k``
-is clipped to 1 but the frame is still shifted to centre the box. The box holds the joints of the
-predicted robot type and the base, when the caller passes the types' joint counts.
+``armpose predict --zoom`` uses it, and the ``evaluate`` stage reports it next to the single
+pass (``evaluate.zoom_test``).
 """
 from __future__ import annotations
 
 from typing import Callable
 
+import cv2
+import numpy as np
 import torch
-import torch.nn.functional as F
+
+from armpose.augment import centring_turn, points_box, rotate_points, undolly_points, view_homography, zoom_scale
 
 OUTPUT_KEYS = ("joints", "base", "type_logits", "mask_logits")
+DEFAULT_SETTINGS = {"fill": 0.6, "max_zoom": 1.5, "weight": 0.5}   # a checkpoint trained without augment.zoom
+TRAINED_WEIGHT = 1.0   # the second look's share when the network was trained on such views
 
 
 CameraLike = "tuple[float, float, float, float] | torch.Tensor"   # one (fx, fy, cx, cy), or one per frame
 
 
-def camera_columns(camera, n: int, like: torch.Tensor) -> list[torch.Tensor]:
-    """``[fx, fy, cx, cy]``, each (n,), from one camera ``(fx, fy, cx, cy)`` or one per frame (n, 4)."""
-    cam = torch.as_tensor(camera, dtype=like.dtype, device=like.device)
+def camera_rows(camera, n: int) -> np.ndarray:
+    """``(n, 4)`` float64 ``fx, fy, cx, cy`` from one camera or one per frame."""
+    cam = np.asarray(torch.as_tensor(camera).detach().cpu(), np.float64)
     if cam.shape not in ((4,), (n, 4)):
         raise ValueError(f"camera must be (fx, fy, cx, cy) or one per frame ({n}, 4), got shape {tuple(cam.shape)}")
-    return list(cam.expand(n, 4).unbind(-1))
+    return np.broadcast_to(cam, (n, 4))
 
 
 def check_max_zoom(max_zoom) -> float:
@@ -54,117 +61,137 @@ def check_max_zoom(max_zoom) -> float:
     return float(max_zoom)
 
 
-def zoom_for_points(points: torch.Tensor, camera: CameraLike, size: tuple[int, int], max_zoom: float = 1.5,
-                    margin: float = 0.25, pad_px: float = 8.0,
-                    valid: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(k, t)``: per frame, magnification ``k`` (B,) and offset ``t`` (B, 2) pixels that put the
-    box of ``points`` (B, N, 3) (metres, camera frame, in front of the camera; only those where
-    ``valid`` (B, N) is true, if given) at the principal point, magnified to fill the image
-    ``size`` = (width, height) with ``margin`` (a fraction of the box size) plus ``pad_px`` on
-    every side, ``1 <= k <= max_zoom``. Where ``k`` is clipped to 1 the frame is still shifted
-    by ``t``, to centre the box."""
-    max_zoom = check_max_zoom(max_zoom)
-    fx, fy, cx, cy = (c[:, None] for c in camera_columns(camera, points.shape[0], points))
-    width, height = size
-    z = points[..., 2].clamp(min=1e-3)
-    u, v = fx * points[..., 0] / z + cx, fy * points[..., 1] / z + cy
-    if valid is not None:
-        inf = torch.full_like(u, float("inf"))
-        umin, umax = torch.where(valid, u, inf).amin(1), torch.where(valid, u, -inf).amax(1)
-        vmin, vmax = torch.where(valid, v, inf).amin(1), torch.where(valid, v, -inf).amax(1)
-    else:
-        umin, umax, vmin, vmax = u.amin(1), u.amax(1), v.amin(1), v.amax(1)
-    box_w = (umax - umin + 1) * (1 + 2 * margin) + 2 * pad_px
-    box_h = (vmax - vmin + 1) * (1 + 2 * margin) + 2 * pad_px
-    k = torch.minimum(width / box_w, height / box_h).clamp(1.0, float(max_zoom))
-    centre = torch.stack([(umin + umax) / 2, (vmin + vmax) / 2], -1)
-    t = torch.cat([cx, cy], 1) - k[:, None] * centre
-    return k, t
+def settings_from_config(config: dict) -> dict:
+    """``{fill, max_zoom, weight}`` of the zoom test for a checkpoint's ``config``: the middle of
+    the training stage's ``augment.zoom.fill`` and its ``max_zoom``, with the second look at
+    :data:`TRAINED_WEIGHT`; :data:`DEFAULT_SETTINGS` (the mean of both looks) for a network
+    trained without zoomed views."""
+    zoom = ((config or {}).get("cfg", {}).get("augment") or {}).get("zoom") or {}
+    if not zoom or not float(zoom.get("p", 0.0)) > 0:
+        return dict(DEFAULT_SETTINGS)
+    from armpose.augment import zoom_config
+    zcfg = zoom_config({"zoom": zoom})
+    return {"fill": float(np.mean(zcfg["fill"])), "max_zoom": check_max_zoom(float(zcfg["max_zoom"])),
+            "weight": TRAINED_WEIGHT}
 
 
-def magnify(images: torch.Tensor, k: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-    """``images`` (B, C, H, W) resampled so that pixel ``p`` goes to ``k p + t`` (bilinear;
-    pixels from outside the image are 0)."""
-    return _affine_resample(images, 1.0 / k, -t / k[:, None])
+def zoom_views(points: np.ndarray, valid: np.ndarray, camera: np.ndarray, size: tuple[int, int],
+               fill: float, max_zoom: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(turns (B, 3, 3), scales (B,))``: per frame, the camera turn that centres the box of
+    ``points`` (B, N, 3) where ``valid`` (B, N), and the image scale that makes it span ``fill``
+    of ``size`` = (width, height), within ``[1, max_zoom]``. ``camera`` (B, 4)."""
+    turns, scales = np.zeros((len(points), 3, 3)), np.ones(len(points))
+    for b, (p, ok, cam) in enumerate(zip(points, valid, camera)):
+        p = p[ok]
+        if not (p[:, 2] > 1e-6).any():       # nothing in front of the camera: look again unchanged
+            turns[b] = np.eye(3)
+            continue
+        turns[b] = centring_turn(points_box(p, cam)[0], cam)
+        scales[b] = zoom_scale(rotate_points(p, turns[b]), cam, size, fill, 1.0, max_zoom)
+    return turns, scales
 
 
-def unmagnify(maps: torch.Tensor, k: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(maps back, covered)``: ``maps`` (B, C, H, W) of a magnified image resampled to the
-    original pixels (pixel ``p`` reads ``k p + t``), and a (B, 1, H, W) bool of the pixels whose
-    source lies inside the magnified image."""
-    back = _affine_resample(maps, k, t)
-    n, _, h, w = maps.shape
-    kk, tx, ty = k.reshape(n, 1, 1, 1), t[:, 0].reshape(n, 1, 1, 1), t[:, 1].reshape(n, 1, 1, 1)
-    u = kk * torch.arange(w, dtype=k.dtype, device=k.device).reshape(1, 1, 1, w) + tx
-    v = kk * torch.arange(h, dtype=k.dtype, device=k.device).reshape(1, 1, h, 1) + ty
-    covered = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    return back, covered
+def warp_images(images: torch.Tensor, turns: np.ndarray, scales: np.ndarray, camera: np.ndarray) -> torch.Tensor:
+    """``images`` (B, C, H, W) as seen from each frame's turned, dollied camera (bilinear,
+    zeros outside; :func:`armpose.augment.view_homography`)."""
+    arr = images.detach().float().cpu().permute(0, 2, 3, 1).numpy()
+    size = (arr.shape[2], arr.shape[1])
+    out = np.stack([_warp(a, view_homography(M, cam, s), size) for a, M, s, cam in zip(arr, turns, scales, camera)])
+    out = out.reshape(arr.shape)
+    return torch.from_numpy(out).permute(0, 3, 1, 2).to(images.device, images.dtype)
 
 
-def _affine_resample(x: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Output pixel ``p`` (pixel-centre coordinates, 0 at the first pixel) reads input pixel
-    ``a p + b``; ``a`` (B,), ``b`` (B, 2). Bilinear, zeros outside."""
-    n, _, h, w = x.shape
-    size = torch.tensor([w, h], dtype=x.dtype, device=x.device)
-    a, b = a.to(x.dtype), b.to(x.dtype)
-    # normalised coordinates (align_corners=False): q = (2 p + 1) / size - 1, so
-    # q_in = a q_out + (a - 1) + (2 b + 1 - a) / size
-    theta = torch.zeros(n, 2, 3, dtype=x.dtype, device=x.device)
-    theta[:, 0, 0] = a
-    theta[:, 1, 1] = a
-    theta[:, :, 2] = a[:, None] - 1 + (2 * b + 1 - a[:, None]) / size
-    grid = F.affine_grid(theta, list(x.shape), align_corners=False)
-    return F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+def unwarp_maps(maps: torch.Tensor, turns: np.ndarray, scales: np.ndarray,
+                camera: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(maps back, covered)``: ``maps`` (B, 1, H, W) of the second look resampled at the
+    original pixels (pixel ``p`` reads the view's ``H p``), and a (B, 1, H, W) bool of the
+    pixels whose source lies inside the view."""
+    arr = maps.detach().float().cpu()[:, 0].numpy()
+    size = (arr.shape[2], arr.shape[1])
+    ones = np.ones(arr.shape[1:], np.float32)
+    back, covered = [], []
+    for a, M, s, cam in zip(arr, turns, scales, camera):
+        H = view_homography(M, cam, s)
+        back.append(_warp(a, H, size, inverse=True))
+        covered.append(_warp(ones, H, size, inverse=True, nearest=True) > 0.5)
+    to = lambda x: torch.from_numpy(np.stack(x))[:, None].to(maps.device)   # noqa: E731
+    return to(back).to(maps.dtype), to(covered)
 
 
-def unzoom_points(points: torch.Tensor, k: torch.Tensor, t: torch.Tensor, camera: CameraLike) -> torch.Tensor:
-    """Points ``(B, ..., 3)`` predicted on magnified images, in the original camera's frame
-    (module docstring). ``k`` (B,), ``t`` (B, 2) as from :func:`zoom_for_points`."""
-    shape = (-1,) + (1,) * (points.dim() - 2)
-    fx, fy, cx, cy = (c.reshape(shape) for c in camera_columns(camera, points.shape[0], points))
-    kk, tx, ty = k.to(points.dtype).reshape(shape), t[:, 0].to(points.dtype).reshape(shape), t[:, 1].to(points.dtype).reshape(shape)
-    zp = points[..., 2]
-    # x = (fx x'/z' + cx - k cx - t_x) z / (k fx) with z = k z', without dividing by z'
-    x = points[..., 0] + ((1 - kk) * cx - tx) * zp / fx
-    y = points[..., 1] + ((1 - kk) * cy - ty) * zp / fy
-    return torch.stack([x, y, kk * zp], -1)
+def _warp(a: np.ndarray, H: np.ndarray, size, inverse: bool = False, nearest: bool = False) -> np.ndarray:
+    flags = (cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR) | (cv2.WARP_INVERSE_MAP if inverse else 0)
+    return cv2.warpPerspective(np.ascontiguousarray(a, np.float32), H, size, flags=flags,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
-def zoom_average(single: dict, zoomed: dict, k: torch.Tensor, t: torch.Tensor, camera: CameraLike) -> dict:
-    """The mean of ``single`` (outputs on the images) and ``zoomed`` (outputs on the magnified
-    images), both dicts with :data:`OUTPUT_KEYS` (``mask_logits`` optional)."""
-    probs = (single["type_logits"].float().softmax(-1) + zoomed["type_logits"].float().softmax(-1)) / 2
-    out = {"joints": (single["joints"] + unzoom_points(zoomed["joints"], k, t, camera)) / 2,
-           "base": (single["base"] + unzoom_points(zoomed["base"][:, None], k, t, camera)[:, 0]) / 2,
+def unzoom_points(points: torch.Tensor, turns: np.ndarray, scales: np.ndarray, z_ref: np.ndarray) -> torch.Tensor:
+    """Points ``(B, N, 3)`` predicted on the second look's views, in the original camera's frame:
+    un-dollied about ``z_ref`` (B,) (the view's reference depth, the mean depth of its joints)
+    and turned back."""
+    p = points.detach().double().cpu().numpy()
+    back = np.stack([undolly_points(q, s, z) @ M for q, M, s, z in zip(p, turns, scales, z_ref)])
+    return torch.from_numpy(back).to(points.device, points.dtype)
+
+
+def valid_slots(type_logits: torch.Tensor, n_slots: int, joint_counts: list[int] | None) -> torch.Tensor:
+    """(B, n_slots) bool: the joint slots of each frame's predicted type (all without ``joint_counts``)."""
+    slots = torch.arange(n_slots, device=type_logits.device)
+    if joint_counts is None:
+        return torch.ones(type_logits.shape[0], n_slots, dtype=torch.bool, device=type_logits.device)
+    counts = torch.as_tensor(joint_counts, device=type_logits.device)[type_logits.argmax(-1)]
+    return slots[None] < counts[:, None]
+
+
+def zoom_combine(single: dict, zoomed: dict, turns: np.ndarray, scales: np.ndarray, camera: np.ndarray,
+                 mask_threshold: float = 0.0, joint_counts: list[int] | None = None, weight: float = 0.5) -> dict:
+    """The weighted mean of ``single`` (outputs on the images) and ``zoomed`` (outputs on the
+    views ``turns``, ``scales`` of cameras ``camera`` (B, 4)), ``weight`` on the second look; both
+    dicts with :data:`OUTPUT_KEYS` (``mask_logits`` optional). ``mask_threshold``: the model's
+    mask decision logit."""
+    joints2 = zoomed["joints"].float()
+    valid2 = valid_slots(zoomed["type_logits"], joints2.shape[1], joint_counts)
+    z_ref = ((joints2[..., 2] * valid2).sum(1) / valid2.sum(1).clamp(min=1)).cpu().numpy()
+    points = unzoom_points(torch.cat([joints2, zoomed["base"].float()[:, None]], 1), turns, scales, z_ref)
+    w = float(weight)
+    probs = (1 - w) * single["type_logits"].float().softmax(-1) + w * zoomed["type_logits"].float().softmax(-1)
+    out = {"joints": (1 - w) * single["joints"].float() + w * points[:, :-1],
+           "base": (1 - w) * single["base"].float() + w * points[:, -1],
            "type_logits": probs.clamp(min=1e-12).log()}
     if "mask_logits" in single:
-        back, covered = unmagnify(zoomed["mask_logits"].float(), k, t)
         first = single["mask_logits"].float()
-        out["mask_logits"] = torch.where(covered, (first + back) / 2, first)
+        back, covered = unwarp_maps(zoomed["mask_logits"].float(), turns, scales, camera)
+        pi = (first > mask_threshold).float().mean((1, 2, 3)).clamp(1e-3, 0.5)
+        pi2 = (pi * torch.as_tensor(scales, dtype=pi.dtype, device=pi.device) ** 2).clamp(1e-3, 0.5)
+        shift = (torch.log((1 - pi) / pi) - torch.log((1 - pi2) / pi2)).reshape(-1, 1, 1, 1)
+        out["mask_logits"] = torch.where(covered, (1 - w) * first + w * (back + shift), first)
     return out
 
 
 def zoom_refine(forward: Callable[[torch.Tensor], dict], images: torch.Tensor, single: dict, camera: CameraLike,
-                max_zoom: float = 1.5, margin: float = 0.25, joint_counts: list[int] | None = None) -> dict:
-    """The zoom-test average, given ``single``, the outputs of ``forward`` on ``images``
-    (B, 3, H, W) in [0, 1]: ``forward`` runs once more, on the magnified images.
+                settings: dict | None = None, joint_counts: list[int] | None = None,
+                mask_threshold: float = 0.0) -> dict:
+    """The zoom-test result, given ``single``, the outputs of ``forward`` on ``images``
+    (B, 3, H, W) in [0, 1]: ``forward`` runs once more, on the second look's views.
     ``camera``: (fx, fy, cx, cy) of the network input in pixels, or one row per frame.
-    ``joint_counts`` (joints of each robot type, by class index): the box then holds only the
-    joints of each frame's predicted type (and the base), not the unused slots."""
-    points = torch.cat([single["joints"], single["base"][:, None]], 1).float()
-    valid = None
-    if joint_counts is not None:
-        counts = torch.as_tensor(joint_counts, device=points.device)[single["type_logits"].argmax(-1)]
-        slots = torch.arange(points.shape[1], device=points.device)
-        valid = (slots[None] < counts[:, None]) | (slots[None] == points.shape[1] - 1)
-    k, t = zoom_for_points(points, camera, (images.shape[-1], images.shape[-2]), max_zoom, margin, valid=valid)
-    zoomed_images = magnify(images.float(), k, t).to(images.dtype).contiguous(memory_format=torch.channels_last)
-    return zoom_average(single, forward(zoomed_images), k, t, camera)
+    ``settings``: ``{fill, max_zoom, weight}`` (:func:`settings_from_config`; default
+    :data:`DEFAULT_SETTINGS`). ``joint_counts`` (joints of each robot type, by class index):
+    the box then holds only the joints of each frame's predicted type (and the base)."""
+    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    cams = camera_rows(camera, images.shape[0])
+    joints = single["joints"].float()
+    valid = torch.cat([valid_slots(single["type_logits"], joints.shape[1], joint_counts),
+                       torch.ones(joints.shape[0], 1, dtype=torch.bool, device=joints.device)], 1)
+    points = torch.cat([joints, single["base"].float()[:, None]], 1).detach().double().cpu().numpy()
+    turns, scales = zoom_views(points, valid.cpu().numpy(), cams, (images.shape[-1], images.shape[-2]),
+                               float(st["fill"]), check_max_zoom(st["max_zoom"]))
+    views = warp_images(images, turns, scales, cams).contiguous(memory_format=torch.channels_last)
+    return zoom_combine(single, forward(views), turns, scales, cams, mask_threshold, joint_counts, float(st["weight"]))
 
 
-def forward_with_zoom(model, images: torch.Tensor, camera: CameraLike, max_zoom: float = 1.5,
-                      margin: float = 0.25, joint_counts: list[int] | None = None) -> tuple[dict, dict]:
-    """``(single, averaged)``: the model's outputs on ``images`` and the zoom-test average
-    (two forward passes, the second on the magnified images)."""
+def forward_with_zoom(model, images: torch.Tensor, camera: CameraLike, settings: dict | None = None,
+                      joint_counts: list[int] | None = None) -> tuple[dict, dict]:
+    """``(single, zoomed)``: the model's outputs on ``images`` and the zoom-test result
+    (two forward passes, the second on the second look's views)."""
     single = model(images)
-    return single, zoom_refine(model, images, single, camera, max_zoom, margin, joint_counts)
+    threshold = float(getattr(model, "mask_threshold", 0.0))
+    return single, zoom_refine(model, images, single, camera, settings, joint_counts, threshold)

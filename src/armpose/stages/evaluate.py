@@ -167,8 +167,7 @@ def run(params: dict, root: Path | None = None) -> dict:
     for name, ckpt in cfg["models"].items():
         m, pred, truth = evaluate_checkpoint(root / ckpt, data_dir, base, "test", int(cfg["batch_size"]),
                                              mirror=bool(cfg.get("mirror_test", False)) and name == "transfer",
-                                             zoom=bool(cfg.get("zoom_test", False)) and name == "transfer",
-                                             max_zoom=float(cfg.get("max_zoom", 1.5)))
+                                             zoom=bool(cfg.get("zoom_test", False)) and name == "transfer")
         metrics[name] = {"checkpoint": ckpt, "test": m}
         preds[name] = (pred, truth)
     for name, pred_truth in preds.items():

@@ -4,7 +4,8 @@ Batch 1: the median and 95th percentile over ``frames`` timed forwards after ``w
 untimed ones; batch ``batch``: frames per second; with ``mirror_test``, also batch 1 with
 the mirror test (``armpose predict --mirror``: each image with its mirror, one forward);
 with ``zoom_test``, batch 1 with the zoom test (``armpose predict --zoom``: two forwards,
-the second on the input magnified up to ``max_zoom``). On CPU with ``threads`` torch threads,
+the second on the view of a camera turned to the robot and moved closer, settings from the
+checkpoint). On CPU with ``threads`` torch threads,
 and on CUDA as well when a GPU is present. Inputs are test images from ``data/labels`` at
 the network's 256x212 input. Writes ``results/latency.json``; ``benchmarks/bench_inference.py``
 is the same function from the command line.
@@ -28,7 +29,7 @@ from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
 from armpose.mirror_test import forward_with_mirror
 from armpose.robots import get_robot
-from armpose.zoom_test import check_max_zoom, forward_with_zoom
+from armpose.zoom_test import forward_with_zoom, settings_from_config
 
 log = logging.getLogger(__name__)
 OUTPUT = Path("results/latency.json")
@@ -56,13 +57,14 @@ def _batch1_times(forward, imgs: torch.Tensor, device: torch.device, frames: int
 @torch.no_grad()
 def time_device(model, images: torch.Tensor, device: torch.device, frames: int, warmup: int, batch: int,
                 mirror_camera: tuple[float, float] | None = None,
-                zoom_camera: tuple[float, float, float, float] | None = None, max_zoom: float = 1.5,
+                zoom_camera: tuple[float, float, float, float] | None = None, zoom_settings: dict | None = None,
                 joint_counts: list[int] | None = None) -> dict:
     """Batch-1 latency (ms) and batch-``batch`` throughput (frames/s) of ``model`` on ``device``;
     with ``mirror_camera`` (the network camera's fx, cx in pixels), also the batch-1 latency of
     the mirror test (:func:`armpose.mirror_test.forward_with_mirror`, two images a forward);
     with ``zoom_camera`` (fx, fy, cx, cy), that of the zoom test
-    (:func:`armpose.zoom_test.forward_with_zoom`, two forwards and the resampling; ``joint_counts``
+    (:func:`armpose.zoom_test.forward_with_zoom` with ``zoom_settings``, two forwards and the
+    resampling; ``joint_counts``
     per robot type, as ``armpose predict`` passes them)."""
     model = model.to(device)
     imgs = images.to(device).contiguous(memory_format=torch.channels_last)
@@ -83,7 +85,7 @@ def time_device(model, images: torch.Tensor, device: torch.device, frames: int, 
         out.update(mirror_batch1_median_ms=round(float(np.median(mirrored)), 3),
                    mirror_batch1_p95_ms=round(float(np.percentile(mirrored, 95)), 3))
     if zoom_camera is not None:
-        zoomed = _batch1_times(lambda x: forward_with_zoom(model, x, zoom_camera, max_zoom, joint_counts=joint_counts),
+        zoomed = _batch1_times(lambda x: forward_with_zoom(model, x, zoom_camera, zoom_settings, joint_counts),
                                imgs, device, frames, warmup)
         out.update(zoom_batch1_median_ms=round(float(np.median(zoomed)), 3),
                    zoom_batch1_p95_ms=round(float(np.percentile(zoomed, 95)), 3))
@@ -105,7 +107,7 @@ def run(params: dict, root: Path | None = None) -> dict:
     fx, fy, cx, cy = (float(v) for v in frames[0]["intrinsics"])
     mirror = (fx, cx) if cfg.get("mirror_test", False) else None
     zoom = (fx, fy, cx, cy) if cfg.get("zoom_test", False) else None
-    options = (mirror, zoom, check_max_zoom(cfg.get("max_zoom", 1.5)), counts)
+    options = (mirror, zoom, settings_from_config(config), counts)
     result = {"checkpoint": cfg["checkpoint"], "input": f"{images.shape[-1]}x{images.shape[-2]}",
               "paper_ms": [19, 23], "paper_device": "GTX 1080 Ti", "target_cpu_median_ms": 15.0,
               "cpu": {"threads": int(cfg["threads"]), "processor": platform.processor() or platform.machine(),
