@@ -1,6 +1,6 @@
 """Test-split scores of any checkpoints, for A/B comparisons of a stage's settings.
 
-    python benchmarks/score_checkpoint.py CHECKPOINT [CHECKPOINT ...] [--families UR] [--mirror] [--zoom] [--out FILE]
+    python benchmarks/score_checkpoint.py CHECKPOINT [CHECKPOINT ...] [--families UR] [--mirror] [--zoom] [--fit] [--out FILE]
 
 Scores each checkpoint on the test split of ``data/labels`` with the ``evaluate`` stage's
 metrics (:func:`armpose.evaluate.evaluate_checkpoint`) and prints, per robot family and per
@@ -9,7 +9,8 @@ A pretraining checkpoint has only seen UR robots, so compare those with ``--fami
 To score the checkpoint of another commit's settings, check that commit out and run its
 stage (``dvc repro pretrain``) first; the dataset must be the same for the scores to compare.
 ``--mirror`` adds the scores of the mirror test (``mirror_test``, :mod:`armpose.mirror_test`),
-``--zoom`` those of the zoom test (``zoom_test``, :mod:`armpose.zoom_test`).
+``--zoom`` those of the zoom test (``zoom_test``, :mod:`armpose.zoom_test`), ``--fit`` those of the
+kinematic fit (``kinematic_fit``, :mod:`armpose.kinematic_fit`; to the zoom test's estimate with ``--zoom``).
 ``--out`` also writes the scores as JSON (atomically).
 """
 from __future__ import annotations
@@ -25,6 +26,7 @@ import yaml
 from armpose.config import project_root
 from armpose.evaluate import evaluate_checkpoint, family_of
 from armpose.io import atomic_write_json
+from armpose.kinematic_fit import FitSettings
 
 KEYS = ("frames", "joint_median_cm", "base_median_cm", "type_accuracy", "mask_accuracy")
 
@@ -46,6 +48,7 @@ def main() -> None:
     ap.add_argument("--families", nargs="+", default=["UR", "KUKA", "Panda"])
     ap.add_argument("--mirror", action="store_true", help="also score the mirror test")
     ap.add_argument("--zoom", action="store_true", help="also score the zoom test")
+    ap.add_argument("--fit", action="store_true", help="also score the kinematic fit")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -54,9 +57,10 @@ def main() -> None:
     torch.set_num_threads(int(base.get("threads", 2)))
     out = {}
     for ckpt in args.checkpoints:
-        metrics, _, _ = evaluate_checkpoint(ckpt, root / "data" / "labels", base, mirror=args.mirror, zoom=args.zoom)
+        metrics, _, _ = evaluate_checkpoint(ckpt, root / "data" / "labels", base, mirror=args.mirror, zoom=args.zoom,
+                                            fit=FitSettings() if args.fit else None)
         out[str(ckpt)] = scores(metrics, args.families, list(base["robot_types"]))
-        for flag, name in ((args.mirror, "mirror_test"), (args.zoom, "zoom_test")):
+        for flag, name in ((args.mirror, "mirror_test"), (args.zoom, "zoom_test"), (args.fit, "kinematic_fit")):
             if flag:
                 out[str(ckpt)][name] = scores(metrics[name], args.families, list(base["robot_types"]))
         print(ckpt, json.dumps(out[str(ckpt)], indent=1))

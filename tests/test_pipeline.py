@@ -51,6 +51,12 @@ def test_dvc_repro_runs_every_stage_and_then_does_nothing(tmp_path, tiny_params)
     assert test["camera_pose"]["fit"] == "rays" and test["camera_pose"]["rigid"]["fit"] == "rigid"  # evaluate.pose_fit
     assert "| tripod | rigid + rays | 10 |" in table and "| tripod | rigid | 10 |" in table
     assert "## Mirror test" in table
+    assert test["kinematic_fit"]["all"]["frames"] == test["all"]["frames"]           # evaluate.kinematic_fit
+    assert latency["fit_batch1_median_ms"] > 0                                      # latency.kinematic_fit
+    assert "## Kinematic fit" in table and "with the zoom test and the fit" in table  # evaluate.headline
+    from armpose.train import load_checkpoint                                       # transfer_stage2.fit_sigmas:
+    extra = load_checkpoint(work / "models" / "transfer_stage2" / "model.pt")["extra"]   # measured (the tiny set has
+    assert extra["fit_sigmas"] == {}                                                # no held-out frames left)
     before = {p.name: p.read_bytes() for p in (work / "data" / "labels").glob("*.npy")}
     out = _sh("dvc repro labels", work)
     assert "didn't change" in out or "up to date" in out, out

@@ -177,3 +177,43 @@ def test_a_checkpoint_of_another_format_is_one_clear_error(setup, capsys):
     rc = predict_main(["--checkpoint", str(bad), str(tmp / "canon")])
     err = capsys.readouterr().err
     assert rc == 1 and "old.pt" in err and "format" in err
+
+
+class RobotOracle(nn.Module):
+    """Stands in for the network: always reports one posed UR5 (base and six joints), type ur5."""
+
+    def __init__(self, base: torch.Tensor, joints: torch.Tensor, type_index: int):
+        super().__init__()
+        self.b, self.j, self.k = base.float(), joints.float(), type_index
+
+    def forward(self, x):
+        n = x.shape[0]
+        joints = torch.zeros(n, 7, 3)
+        joints[:, :6] = self.j
+        logits = torch.full((n, 5), -5.0)
+        logits[:, self.k] = 5.0
+        return {"joints": joints, "base": self.b.expand(n, 3).clone(), "type_logits": logits,
+                "mask_logits": torch.full((n, 1, x.shape[2], x.shape[3]), -10.0)}
+
+
+def test_fit_gives_the_posed_model_its_joint_angles_and_camera_pose(setup):
+    """``--fit``: the predicted type's model posed to the estimate. With an estimate that is a real
+    UR5, the fit returns it, with six joint angles and the base's pose in the camera frame."""
+    from armpose.robots import get_robot
+    from armpose.robots.kinematics import Kinematics, SerialChain
+    tmp, base, ckpt = setup
+    kin = Kinematics(get_robot("ur5"))
+    q = torch.tensor([[0.3, -1.1, 1.4, -0.6, 1.2, 0.4]], dtype=torch.float64)
+    pts = SerialChain(kin).positions(q)[0].numpy()
+    R = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)                 # base z axis up in the image
+    cam_pts = pts @ R.T + [0.1, 0.3, 2.2]
+    oracle = RobotOracle(torch.tensor(cam_pts[0]), torch.tensor(cam_pts[1:]), base["robot_types"].index("ur5"))
+    canonical = Camera.from_dict(base["camera"])
+    _write_png(tmp / "fit.png", np.zeros((canonical.height, canonical.width, 3), np.uint8))
+    plain, fitted = (predict([tmp / "fit.png"], ckpt, model=oracle, fit=fit)[0] for fit in (False, True))
+    assert "joint_angles" not in plain and set(fitted) == SCHEMA | {"image", "joint_angles", "camera_T_base"}
+    np.testing.assert_allclose(fitted["joints_xyz"], cam_pts[1:], atol=0.01)
+    np.testing.assert_allclose(np.asarray(fitted["camera_T_base"])[:3, 3], cam_pts[0], atol=0.01)
+    assert len(fitted["joint_angles"]) == 6 and np.asarray(fitted["camera_T_base"]).shape == (4, 4)
+    with pytest.raises(SystemExit):                                         # not with --sequence
+        predict_main(["--checkpoint", str(ckpt), "--fit", "--sequence", str(tmp / "fit.png")])

@@ -54,3 +54,20 @@ def test_git_hash_marks_uncommitted_code_or_params_but_not_pipeline_outputs(tmp_
     assert git_hash(tmp_path) == head
     (tmp_path / "params.yaml").write_text("b\n")
     assert git_hash(tmp_path) == head + "-dirty"
+
+
+def test_headline_reports_the_chosen_variant_and_the_sections_compare_it_with_the_single_pass():
+    import pytest
+    m = _metrics()
+    fitted = {"UR": _fam(0.99, 0.98, 8.0, 7.0), "KUKA": _fam(0.98, 1.0, 3.0, 2.0), "Panda": _fam(0.95, 0.97, 3.5, 4.0)}
+    m["transfer"]["test"]["kinematic_fit"] = {"by_family": fitted}
+    m["latency"]["cpu"]["fit_batch1_median_ms"] = 60.0
+    text = results_table(m, "held-out synthetic renders", headline="kinematic_fit")
+    assert "| Joint position error (median), cm | 3.12 | 8.00 | 3.30 | **3.00** | 3.64 | **3.50** |" in text
+    assert "with the zoom test and the fit" in text and "60.0 ms per frame" in text
+    assert "| UR | 12.00 / 8.00 |" in text                                # the section: single / fit
+    assert "Panda joint" not in text.split("## Still short of the paper")[1]
+    with pytest.raises(ValueError, match="headline"):
+        results_table(m, "x", headline="zoom_test")                      # not run
+    with pytest.raises(ValueError, match="headline"):
+        results_table(m, "x", headline="best")

@@ -16,6 +16,8 @@ import torch
 from tqdm import tqdm
 
 from armpose.data import LabelledFrames, split_indices
+from armpose.fit_sigmas import checkpoint_fit_sigmas
+from armpose.kinematic_fit import FitSettings, fit_predictions
 from armpose.labels.dataset import SOURCE_CODES, load_dataset
 from armpose.metrics import confusion_matrix, mask_counts, summarise
 from armpose.mirror_test import forward_with_mirror
@@ -30,14 +32,18 @@ log = logging.getLogger(__name__)
 @torch.no_grad()
 def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 32,
                   device: torch.device | str = "cpu", rows: np.ndarray | None = None,
-                  mirror: bool = False, zoom: bool = False, zoom_settings: dict | None = None) -> tuple[dict, dict]:
+                  mirror: bool = False, zoom: bool = False, zoom_settings: dict | None = None,
+                  fit: FitSettings | None = None, fit_sigmas: dict | None = None) -> tuple[dict, dict]:
     """``(pred, truth)`` dicts of per-frame numpy arrays over ``rows`` (default: every frame of
     ``split``). ``pred``: joints, base, type, type_probs, mask_counts; ``truth``: joints,
     joint_valid, base, type, intrinsics, distance, source, recording, row. With ``mirror``,
     ``pred["mirror"]`` holds the same keys for the mirror test (:mod:`armpose.mirror_test`),
     from the same forward passes; with ``zoom``, ``pred["zoom"]`` those of the zoom test
     (:mod:`armpose.zoom_test` with ``zoom_settings``: one more pass per batch; scored on the
-    single pass, without the mirror, even when ``mirror`` is on)."""
+    single pass, without the mirror, even when ``mirror`` is on); with ``fit``, ``pred["fit"]``
+    those of the kinematic fit (:mod:`armpose.kinematic_fit`) to the zoom test's outputs (the
+    single pass's without ``zoom``; per-type weights ``fit_sigmas``, :mod:`armpose.fit_sigmas`),
+    plus its joint angles ``q`` and poses ``T_cam_base``."""
     arrays, _ = load_dataset(Path(data_dir))
     rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
     frames = LabelledFrames(Path(data_dir), rows)
@@ -63,6 +69,8 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
         pred["mirror"] = averaged.arrays()
     if zoom:
         pred["zoom"] = zoomed.arrays()
+    if fit is not None:
+        pred["fit"] = fitted(pred["zoom"] if zoom else pred, frames.robot_types, fit, fit_sigmas)
     truth = {"joints": np.asarray(arrays["joints"][rows], np.float64),
              "joint_valid": np.asarray(arrays["joint_valid"][rows], bool),
              "base": np.asarray(arrays["base"][rows], np.float64),
@@ -93,6 +101,14 @@ class _Collected:
         return {"joints": cat(self.joints, (0, 0, 3)), "base": cat(self.base, (0, 3)), "type_probs": type_probs,
                 "type": type_probs.argmax(1) if len(type_probs) else np.zeros(0, np.int64),
                 "mask_counts": cat(self.counts, (0, 4))}
+
+
+def fitted(pred: dict, robot_types: list[str], settings: FitSettings, sigmas: dict | None = None) -> dict:
+    """``pred`` (per-frame arrays of :func:`predict_split`) with its joints and base replaced by
+    the kinematic fit of each frame's predicted type, plus ``q`` and ``T_cam_base``."""
+    fit = fit_predictions(pred["joints"], pred["base"], pred["type"], robot_types, settings, sigmas)
+    return {**{k: v for k, v in pred.items() if k in ("type_probs", "type", "mask_counts")},
+            "joints": fit["joints"], "base": fit["base"], "q": fit["q"], "T_cam_base": fit["T_cam_base"]}
 
 
 def family_of(robot_types: list[str]) -> list[str]:
@@ -130,17 +146,19 @@ def pixel_scale_of(base: dict) -> float:
 
 def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str = "test",
                         batch_size: int = 32, device: str = "cpu", mirror: bool = False,
-                        zoom: bool = False) -> tuple[dict, dict, dict]:
+                        zoom: bool = False, fit: FitSettings | None = None) -> tuple[dict, dict, dict]:
     """``(metrics, pred, truth)`` of one checkpoint on ``split``; with ``mirror``, also
     ``metrics["mirror_test"]``: the ``all`` and ``by_family`` metrics of the mirror test
     (:mod:`armpose.mirror_test`), and ``pred["mirror"]`` its predictions; with ``zoom``,
     ``metrics["zoom_test"]`` and ``pred["zoom"]`` likewise for the zoom test (:mod:`armpose.zoom_test`,
-    its settings from the checkpoint's config)."""
+    its settings from the checkpoint's config); with ``fit``, ``metrics["kinematic_fit"]`` and
+    ``pred["fit"]`` for the kinematic fit (:mod:`armpose.kinematic_fit`)."""
     model, config = load_model(checkpoint, device)
     pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror, zoom=zoom,
-                                zoom_settings=settings_from_config(config))
+                                zoom_settings=settings_from_config(config), fit=fit,
+                                fit_sigmas=checkpoint_fit_sigmas(checkpoint) if fit is not None else None)
     metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base))
-    for key, name in (("mirror", "mirror_test"), ("zoom", "zoom_test")):
+    for key, name in (("mirror", "mirror_test"), ("zoom", "zoom_test"), ("fit", "kinematic_fit")):
         if key in pred:
             both = metrics_by_group(pred[key], truth, list(base["robot_types"]), pixel_scale_of(base))
             metrics[name] = {"all": both["all"], "by_family": both["by_family"], "by_type": both["by_type"],

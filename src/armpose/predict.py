@@ -11,6 +11,10 @@ projected with the user's intrinsics, and the mask is warped back to the input i
 Output per image (one JSON object): ``image``, ``robot_type``, ``type_probs``, ``base_xyz``,
 ``joints_xyz`` (one per joint of the predicted type), ``joints_uv`` (pixels of the input
 image), ``mask`` (PNG path, when a mask folder is given), ``latency_ms`` (network forward).
+With ``fit`` (``--fit``), ``base_xyz``, ``joints_xyz`` and ``joints_uv`` are those of the kinematic
+fit (:mod:`armpose.kinematic_fit`: the predicted type's model posed to the network's estimate),
+and two keys more: ``joint_angles`` (radians, the robot description's joints) and
+``camera_T_base`` (4x4, the robot base in the camera frame, metres); ``latency_ms`` includes it.
 """
 from __future__ import annotations
 
@@ -28,6 +32,8 @@ from armpose.geometry import Camera
 from armpose.intrinsics import load_intrinsics
 from armpose.mirror_test import forward_with_mirror
 from armpose.io import atomic_write_bytes
+from armpose.fit_sigmas import checkpoint_fit_sigmas
+from armpose.kinematic_fit import fit_predictions
 from armpose.model import predicted_mask
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint
@@ -100,7 +106,7 @@ class Predictor:
     """A loaded network plus its camera, robot types and joint counts."""
 
     def __init__(self, checkpoint: Path | str, device: str = "cpu", model=None, mirror: bool = False,
-                 zoom: bool = False):
+                 zoom: bool = False, fit: bool = False):
         from armpose.evaluate import load_model
         ckpt_path = Path(checkpoint)
         if model is None:
@@ -110,8 +116,9 @@ class Predictor:
                 raise PredictError(f"{ckpt_path}: cannot use this checkpoint ({err})") from err
         else:
             config = load_checkpoint(ckpt_path)["config"]
-        self.model, self.device, self.mirror, self.zoom = model, device, mirror, zoom
+        self.model, self.device, self.mirror, self.zoom, self.fit = model, device, mirror, zoom, fit
         self.zoom_settings = settings_from_config(config)
+        self.fit_sigmas = checkpoint_fit_sigmas(ckpt_path) if fit else {}
         self.base = config["base"]
         self.types = list(self.base["robot_types"])
         self.net = network_camera(self.base)
@@ -139,16 +146,21 @@ class Predictor:
             net = (self.net.fx, self.net.fy, self.net.cx, self.net.cy)
             out = zoom_refine(self.forward, x, out, net, self.zoom_settings, self.num_joints,
                               float(getattr(self.model, "mask_threshold", 0.0)))
-        latency = 1000 * (time.perf_counter() - t)
         probs = out["type_logits"][0].float().softmax(-1).cpu().numpy()
         k = int(probs.argmax())
         joints = out["joints"][0, : self.num_joints[k]].double().cpu().numpy()
         base = out["base"][0].double().cpu().numpy()
+        extra = {}
+        if self.fit:
+            fitted = fit_predictions(joints[None], base[None], np.array([0]), [self.types[k]], sigmas=self.fit_sigmas)
+            joints, base = fitted["joints"][0], fitted["base"][0]
+            extra = {"joint_angles": fitted["q"][0].tolist(), "camera_T_base": fitted["T_cam_base"][0].tolist()}
+        latency = 1000 * (time.perf_counter() - t)
         uv = camera.project(joints)
         mask = mask_to_source(predicted_mask(self.model, out["mask_logits"][0, 0]).cpu().numpy(), warp, camera)
         return {"robot_type": self.types[k], "type_probs": {t: float(p) for t, p in zip(self.types, probs)},
                 "base_xyz": base.tolist(), "joints_xyz": joints.tolist(), "joints_uv": uv.tolist(),
-                "latency_ms": round(latency, 3), "_mask": mask}
+                "latency_ms": round(latency, 3), **extra, "_mask": mask}
 
 
 def expand_inputs(inputs: Sequence[str | Path]) -> list[Path]:
@@ -173,7 +185,7 @@ def write_mask(mask: np.ndarray, folder: Path, stem: str) -> Path:
 
 def predict(images: Sequence[str | Path], checkpoint: Path | str, intrinsics: Camera | str | Path | None = None,
             masks: Path | None = None, device: str = "cpu", errors: list | None = None, model=None,
-            mirror: bool = False, zoom: bool = False) -> list[dict]:
+            mirror: bool = False, zoom: bool = False, fit: bool = False) -> list[dict]:
     """One result dict per readable image (schema in the module docstring).
 
     ``intrinsics``: a :class:`Camera` or a JSON path; ``None`` means the canonical camera of the
@@ -182,9 +194,10 @@ def predict(images: Sequence[str | Path], checkpoint: Path | str, intrinsics: Ca
     ``mirror``: average with the network's outputs on the mirrored image (:mod:`armpose.mirror_test`;
     two images a forward pass, included in ``latency_ms``). ``zoom``: a second look from the camera
     turned to the robot and moved closer (:mod:`armpose.zoom_test`, settings from the checkpoint;
-    one more forward pass, included in ``latency_ms``).
+    one more forward pass, included in ``latency_ms``). ``fit``: the kinematic fit of the predicted
+    type's model (:mod:`armpose.kinematic_fit`), with ``joint_angles`` and ``camera_T_base``.
     """
-    predictor = Predictor(checkpoint, device, model=model, mirror=mirror, zoom=zoom)
+    predictor = Predictor(checkpoint, device, model=model, mirror=mirror, zoom=zoom, fit=fit)
     camera = load_intrinsics(Path(intrinsics)) if isinstance(intrinsics, (str, Path)) else intrinsics
     results = []
     for path in expand_inputs(images):

@@ -14,8 +14,13 @@ estimates (:mod:`armpose.mirror_test`): two images a forward pass, for a more ac
 estimate; ``results/results_table.md`` ("Mirror test") gives both accuracies and latencies.
 ``--zoom`` takes a second look at the robot found by the first pass, from a camera turned to
 it and moved closer (:mod:`armpose.zoom_test`; a network trained with ``augment.zoom`` has seen
-such views, and its second look replaces the first): one more forward pass; "Zoom test" in
+such views) and averages the two looks: one more forward pass; "Zoom test" in
 the results table gives its accuracy and latency. Both may be given.
+
+``--fit`` fits the predicted robot type's own model (joint angles and pose, forward kinematics of
+its description) to the network's estimate, on the rays and, loosely, the depths of its points
+(:mod:`armpose.kinematic_fit`): a physically valid robot, plus ``joint_angles`` and
+``camera_T_base`` in the output; "Kinematic fit" in the results table gives its accuracy.
 
 ``--sequence`` treats the inputs as consecutive frames (folders sorted by file name, videos
 read with OpenCV, frame k of ``clip.avi`` named ``clip.avi#k``) and smooths the 3D outputs
@@ -105,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--mirror", action="store_true", help="average with the mirrored image's estimate (2 images a forward)")
     ap.add_argument("--zoom", action="store_true", help="a second look from a camera turned to the robot and moved closer")
+    ap.add_argument("--fit", action="store_true", help="fit the predicted robot's model to the estimate; adds joint_angles, camera_T_base")
     ap.add_argument("--sequence", action="store_true", help="inputs are consecutive frames (folders, videos)")
     ap.add_argument("--filter", choices=FILTERS, help="causal smoothing of --sequence (default kalman)")
     ap.add_argument("--rate-hz", type=float, help="frames per second of --sequence (default: the video's, else 30)")
@@ -114,6 +120,8 @@ def main(argv: list[str] | None = None) -> int:
     given = [f"--{k.replace('_', '-')}" for k in SEQUENCE_ONLY if getattr(args, k) is not None]
     if given and not args.sequence:
         ap.error(f"{', '.join(given)} only with --sequence")
+    if args.fit and args.sequence:
+        ap.error("--fit works on single images, not with --sequence")
     if args.joints and not args.robot:
         ap.error("--joints needs --robot")
     if args.rate_hz is not None and not args.rate_hz > 0:
@@ -130,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1 if errors else 0
     try:
         rows = predict(args.inputs, args.checkpoint, args.intrinsics, Path(args.masks) if args.masks else None,
-                       args.device, errors=errors, mirror=args.mirror, zoom=args.zoom)
+                       args.device, errors=errors, mirror=args.mirror, zoom=args.zoom, fit=args.fit)
     except (PredictError, IntrinsicsError) as err:
         print(f"armpose predict: {err}", file=sys.stderr)
         return 1

@@ -238,6 +238,13 @@ def _with_distillation(losses: dict, out: dict, batch: dict, teacher: dict, cach
     return {**losses, "distill": term, "total": total}
 
 
+def training_rows(arrays, cfg: dict, base: dict):
+    """The training-split rows a stage trains on: ``per_type`` of each of its ``robots`` (all
+    when None), drawn with ``base.seed`` plus the stage's ``seed_offset``."""
+    types = [base["robot_types"].index(r) for r in cfg["robots"]]
+    return transfer_set(arrays, "train", types, cfg.get("per_type"), int(base["seed"]) + int(cfg.get("seed_offset", 0)))
+
+
 # ----------------------------------------------------------------------------- the loop
 def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> dict:
     """Train one stage. ``cfg`` is the stage's params section, ``base`` the shared one.
@@ -258,7 +265,7 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     arrays, index = load_dataset(data_dir)
     types = [base["robot_types"].index(r) for r in cfg["robots"]]
     seed = int(base["seed"]) + int(cfg.get("seed_offset", 0))
-    rows = transfer_set(arrays, "train", types, cfg.get("per_type"), seed)
+    rows = training_rows(arrays, cfg, base)
     val_rows = validation_subset(arrays, "test", int(cfg.get("val_per_type", 50)), seed, robots=types)
     train_ds = LabelledFrames(data_dir, rows, augment=cfg.get("augment"), seed=seed)
     val_ds = LabelledFrames(data_dir, val_rows)

@@ -52,3 +52,30 @@ def test_joint_limits_lie_within_the_urdf(name):
             assert info[8] - 1e-3 <= lo < hi <= info[9] + 1e-3, (joint, lo, hi, info[8], info[9])
     finally:
         pb.disconnect(client)
+
+
+@pytest.mark.parametrize("name", BUILTIN)
+def test_serial_chain_matches_pytorch_kinematics(name):
+    """The kinematic fit's compiled chain gives the same joint positions as pytorch-kinematics
+    (float64), with the base at the origin, batched and unbatched."""
+    import torch
+    from armpose.robots.kinematics import SerialChain
+    kin = Kinematics(get_robot(name))
+    chain = SerialChain(kin)
+    lim = np.array(kin.spec.joint_limits)
+    q = np.random.default_rng(7).uniform(lim[:, 0], lim[:, 1], (40, len(lim)))
+    got = chain.positions(torch.tensor(q)).numpy()
+    np.testing.assert_allclose(got[:, 1:], kin.joint_positions(q), atol=1e-12)
+    assert np.abs(got[:, 0]).max() == 0.0
+    np.testing.assert_allclose(chain.positions(torch.tensor(q[0])).numpy(), got[0], atol=1e-12)
+
+
+def test_axis_angle_matrix_is_a_rotation_and_smooth_at_zero():
+    import torch
+    from armpose.robots.kinematics import axis_angle_matrix
+    v = torch.tensor([[0.0, 0.0, 0.0], [1e-6, -2e-6, 0.0], [0.3, -1.2, 2.0], [0.0, 0.0, np.pi / 2]], dtype=torch.float64)
+    R = axis_angle_matrix(v)
+    np.testing.assert_allclose((R @ R.transpose(1, 2)).numpy(), np.tile(np.eye(3), (4, 1, 1)), atol=1e-12)
+    np.testing.assert_allclose(R[3].numpy(), [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
+    axis = v[2] / v[2].norm()
+    np.testing.assert_allclose((R[2] @ axis).numpy(), axis.numpy(), atol=1e-12)   # the axis is fixed

@@ -29,6 +29,7 @@ import torch
 from armpose.config import load_params, project_root
 from armpose.evaluate import evaluate_checkpoint, family_of, load_model, pixel_scale_of
 from armpose.io import atomic_write_bytes, atomic_write_json, atomic_write_text
+from armpose.kinematic_fit import FitSettings
 from armpose.metrics import error_by_distance, joint_errors, project
 from armpose.model import predicted_mask
 from armpose.report import environment, results_table
@@ -167,7 +168,9 @@ def run(params: dict, root: Path | None = None) -> dict:
     for name, ckpt in cfg["models"].items():
         m, pred, truth = evaluate_checkpoint(root / ckpt, data_dir, base, "test", int(cfg["batch_size"]),
                                              mirror=bool(cfg.get("mirror_test", False)) and name == "transfer",
-                                             zoom=bool(cfg.get("zoom_test", False)) and name == "transfer")
+                                             zoom=bool(cfg.get("zoom_test", False)) and name == "transfer",
+                                             fit=FitSettings() if cfg.get("kinematic_fit", False) and name == "transfer"
+                                             else None)
         metrics[name] = {"checkpoint": ckpt, "test": m}
         preds[name] = (pred, truth)
     for name, pred_truth in preds.items():
@@ -210,7 +213,7 @@ def run(params: dict, root: Path | None = None) -> dict:
     conf = metrics["transfer"]["test"]["confusion"]
     write_csv(plots / "confusion.csv", [{"actual": conf["labels"][a], "predicted": conf["labels"][p]}
                                         for a, row in enumerate(conf["matrix"]) for p, n in enumerate(row) for _ in range(n)])
-    atomic_write_text(res / "results_table.md", results_table(metrics, cfg["data_note"]))
+    atomic_write_text(res / "results_table.md", results_table(metrics, cfg["data_note"], cfg.get("headline", "single")))
     atomic_write_json(res / "env.json", environment(root, cfg["profile"]))
     log.info("pixel scale %.4f", pixel_scale_of(base))
     return metrics

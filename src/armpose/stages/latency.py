@@ -5,7 +5,8 @@ untimed ones; batch ``batch``: frames per second; with ``mirror_test``, also bat
 the mirror test (``armpose predict --mirror``: each image with its mirror, one forward);
 with ``zoom_test``, batch 1 with the zoom test (``armpose predict --zoom``: two forwards,
 the second on the view of a camera turned to the robot and moved closer, settings from the
-checkpoint). On CPU with ``threads`` torch threads,
+checkpoint); with ``kinematic_fit``, batch 1 with the zoom test (when on) and the kinematic fit
+(``armpose predict --zoom --fit``, :mod:`armpose.kinematic_fit`). On CPU with ``threads`` torch threads,
 and on CUDA as well when a GPU is present. Inputs are test images from ``data/labels`` at
 the network's 256x212 input. Writes ``results/latency.json``; ``benchmarks/bench_inference.py``
 is the same function from the command line.
@@ -29,6 +30,8 @@ from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
 from armpose.mirror_test import forward_with_mirror
 from armpose.robots import get_robot
+from armpose.fit_sigmas import checkpoint_fit_sigmas
+from armpose.kinematic_fit import fit_predictions
 from armpose.zoom_test import forward_with_zoom, settings_from_config
 
 log = logging.getLogger(__name__)
@@ -58,14 +61,16 @@ def _batch1_times(forward, imgs: torch.Tensor, device: torch.device, frames: int
 def time_device(model, images: torch.Tensor, device: torch.device, frames: int, warmup: int, batch: int,
                 mirror_camera: tuple[float, float] | None = None,
                 zoom_camera: tuple[float, float, float, float] | None = None, zoom_settings: dict | None = None,
-                joint_counts: list[int] | None = None) -> dict:
+                joint_counts: list[int] | None = None, fit_types: list[str] | None = None,
+                fit_sigmas: dict | None = None) -> dict:
     """Batch-1 latency (ms) and batch-``batch`` throughput (frames/s) of ``model`` on ``device``;
     with ``mirror_camera`` (the network camera's fx, cx in pixels), also the batch-1 latency of
     the mirror test (:func:`armpose.mirror_test.forward_with_mirror`, two images a forward);
     with ``zoom_camera`` (fx, fy, cx, cy), that of the zoom test
     (:func:`armpose.zoom_test.forward_with_zoom` with ``zoom_settings``, two forwards and the
     resampling; ``joint_counts``
-    per robot type, as ``armpose predict`` passes them)."""
+    per robot type, as ``armpose predict`` passes them); with ``fit_types`` (the robot types by class
+    index), that of the zoom test (or the single pass) followed by the kinematic fit of the predicted type."""
     model = model.to(device)
     imgs = images.to(device).contiguous(memory_format=torch.channels_last)
     times = _batch1_times(model, imgs, device, frames, warmup)
@@ -89,6 +94,15 @@ def time_device(model, images: torch.Tensor, device: torch.device, frames: int, 
                                imgs, device, frames, warmup)
         out.update(zoom_batch1_median_ms=round(float(np.median(zoomed)), 3),
                    zoom_batch1_p95_ms=round(float(np.percentile(zoomed, 95)), 3))
+    if fit_types is not None:
+        def fitted(x):
+            out = forward_with_zoom(model, x, zoom_camera, zoom_settings, joint_counts)[1] if zoom_camera else model(x)
+            types = out["type_logits"].argmax(-1).cpu().numpy()
+            return fit_predictions(out["joints"].double().cpu().numpy(), out["base"].double().cpu().numpy(), types,
+                                   fit_types, sigmas=fit_sigmas)
+        times = _batch1_times(fitted, imgs, device, frames, warmup)
+        out.update(fit_batch1_median_ms=round(float(np.median(times)), 3),
+                   fit_batch1_p95_ms=round(float(np.percentile(times, 95)), 3))
     return out
 
 
@@ -107,7 +121,9 @@ def run(params: dict, root: Path | None = None) -> dict:
     fx, fy, cx, cy = (float(v) for v in frames[0]["intrinsics"])
     mirror = (fx, cx) if cfg.get("mirror_test", False) else None
     zoom = (fx, fy, cx, cy) if cfg.get("zoom_test", False) else None
-    options = (mirror, zoom, settings_from_config(config), counts)
+    fit_types = list(config["base"]["robot_types"]) if cfg.get("kinematic_fit", False) else None
+    options = (mirror, zoom, settings_from_config(config), counts, fit_types,
+               checkpoint_fit_sigmas(root / cfg["checkpoint"]) if fit_types else None)
     result = {"checkpoint": cfg["checkpoint"], "input": f"{images.shape[-1]}x{images.shape[-2]}",
               "paper_ms": [19, 23], "paper_device": "GTX 1080 Ti", "target_cpu_median_ms": 15.0,
               "cpu": {"threads": int(cfg["threads"]), "processor": platform.processor() or platform.machine(),
@@ -134,7 +150,7 @@ def main(argv: list[str] | None = None) -> None:
             r = res[dev]
             fps = {k: v for k, v in r.items() if k.endswith("_fps")}
             mirror = "".join(f"; {k} test, batch 1: median {r[f'{k}_batch1_median_ms']:.1f} ms"
-                             for k in ("mirror", "zoom") if f"{k}_batch1_median_ms" in r)
+                             for k in ("mirror", "zoom", "fit") if f"{k}_batch1_median_ms" in r)
             print(f"latency {dev}: batch 1 median {r['batch1_median_ms']:.1f} ms, p95 {r['batch1_p95_ms']:.1f} ms; "
                   + ", ".join(f"{k[:-4]} {v:.0f} frames/s" for k, v in fps.items()) + mirror)
     print(f"latency: wrote {Path(args.root or project_root()) / OUTPUT}")

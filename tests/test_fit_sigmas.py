@@ -1,0 +1,58 @@
+"""armpose.fit_sigmas: the fit's weights from a network's errors on held-out training frames."""
+import numpy as np
+import pytest
+
+from armpose.data import split_indices
+from armpose.fit_sigmas import held_out_rows, sigmas_from_predictions
+from armpose.labels.dataset import load_dataset
+
+
+def test_sigmas_are_the_median_ray_error_and_the_scaled_log_depth_error():
+    rng = np.random.default_rng(0)
+    n = 50
+    truth = {"joints": np.column_stack([rng.uniform(-0.5, 0.5, (n * 7, 2)), rng.uniform(1.5, 2.5, n * 7)]).reshape(n, 7, 3),
+             "base": np.tile([0.0, 0.2, 2.0], (n, 1)), "type": np.array([0] * 30 + [4] * 20),
+             "joint_valid": np.ones((n, 7), bool)}
+    truth["joint_valid"][:30, 6] = False                                   # a 6-joint type
+    shift, scale = 0.01, 1.05                                              # every ray off by 0.01, every depth by 5 %
+    pred = {"joints": truth["joints"] * scale + np.array([shift, 0.0, 0.0]) * truth["joints"][..., 2:] * scale,
+            "base": truth["base"] * scale + np.array([shift, 0.0, 0.0]) * truth["base"][:, 2:] * scale}
+    out = sigmas_from_predictions(pred, truth, ["ur3", "ur5", "ur10", "iiwa", "panda"])
+    assert set(out) == {"ur3", "panda"} and out["ur3"]["frames"] == 30
+    assert out["ur3"]["ray_sigma"] == pytest.approx(0.01, abs=1e-5)
+    assert out["ur3"]["log_depth_sigma"] == pytest.approx(np.log(1.05) * np.sqrt(7), abs=1e-4)   # base + 6 joints
+    assert out["panda"]["log_depth_sigma"] == pytest.approx(np.log(1.05) * np.sqrt(8), abs=1e-4)
+
+
+def test_held_out_rows_are_training_rows_outside_the_used_ones(tiny_project):
+    root, _ = tiny_project
+    data = root / "data" / "labels"
+    arrays, _ = load_dataset(data)
+    train = split_indices(arrays, "train")
+    used = train[::2]
+    rows = held_out_rows(data, used, [0, 4], seed=1, per_type=3)
+    assert len(np.intersect1d(rows, used)) == 0 and np.isin(rows, train).all()
+    robot = np.asarray(arrays["robot"])[rows]
+    assert set(robot.tolist()) <= {0, 4} and all((robot == t).sum() <= 3 for t in (0, 4))
+    assert np.array_equal(rows, held_out_rows(data, used, [0, 4], seed=1, per_type=3))
+
+
+def test_add_fit_sigmas_measures_held_out_frames_and_stores_them_once(tiny_project, tmp_path):
+    from armpose.fit_sigmas import add_fit_sigmas, checkpoint_fit_sigmas
+    from armpose.model import build_model
+    from armpose.train import save_checkpoint
+    root, tparams = tiny_project
+    data = root / "data" / "labels"
+    base = {**tparams["base"], "model": {"width": 8}}
+    cfg = {"robots": ["ur3", "panda"], "augment": {"zoom": {"p": 0.5}}}
+    ckpt = tmp_path / "model.pt"
+    save_checkpoint(ckpt, build_model(base["model"]), None, None, 1, "transfer_stage2",
+                    {"stage": "transfer_stage2", "cfg": cfg, "base": base})
+    arrays, _ = load_dataset(data)
+    used = split_indices(arrays, "train")[::2]
+    sigmas = add_fit_sigmas(ckpt, data, used, seed=0)
+    assert set(sigmas) == {"ur3", "panda"}                                # the stage's robots only
+    assert all(v["ray_sigma"] > 0 and v["log_depth_sigma"] > 0 and v["frames"] > 0 for v in sigmas.values())
+    assert checkpoint_fit_sigmas(ckpt) == sigmas
+    stored = ckpt.read_bytes()
+    assert add_fit_sigmas(ckpt, data, used, seed=0) == sigmas and ckpt.read_bytes() == stored
