@@ -48,6 +48,12 @@
 # (softened by a temperature, weighted like the type term), logged as `distill`. Here the trunk is
 # frozen, so the teacher reads the same cached trunk features (`armpose.distill`).
 #
+# **Cached trunk features, two views per frame.** With the trunk frozen, its features never change,
+# so they are computed once per frame (`armpose.features`) and each step trains the heads alone.
+# Because `augment.zoom` is set, the cache holds every frame twice: as stored and from the zoom
+# test's second-look view (the camera turned to the robot and moved closer, labels moved with it),
+# so the new robots' heads learn the view the zoom test will show them.
+#
 # **The plateau rule** ("the system is trained until there is no more improvement"): the training
 # loss is smoothed with an exponential moving average (0.98); the stage stops once the smoothed loss
 # has not dropped by a relative `plateau.delta` below its best for `plateau.patience` steps, or at

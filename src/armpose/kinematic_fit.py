@@ -15,18 +15,20 @@ its description's. The result is a physically valid robot: bone lengths and join
 angles within their limits (a penalty outside them), plus the estimated joint angles and
 camera pose as by-products.
 
-Solver: the angles are started from the best of ``starts`` random configurations (each
-rigidly aligned to the network's points by the Kabsch solution), then refined by
-Levenberg-Marquardt, batched over the frames of one robot type (forward-mode Jacobians of
-:class:`armpose.robots.kinematics.SerialChain`): first on the points (metres), then on the
-rays and depths. Frames and units: camera optical frame (x right, y down, z forward), metres,
+Solver: the ``starts`` random configurations are each rigidly aligned to the network's points
+(Kabsch); the ``hypotheses`` best are refined by Levenberg-Marquardt, batched over the frames of
+one robot type (forward-difference Jacobians of :class:`armpose.robots.kinematics.SerialChain`,
+all parameters in one batched call), first on the points (metres), then on the rays and
+depths; each frame keeps its lowest-cost hypothesis. Frames and units: camera optical frame (x right, y down, z forward), metres,
 radians.
 
-Sigmas. ``ray_sigma`` is about the network's median ray error; ``log_depth_sigma`` its median
+Sigmas. ``ray_sigma`` is the network's median ray error; ``log_depth_sigma`` its median
 log-depth error times the square root of the number of points, because a frame's depth errors
 are nearly all one shared error (frame depth error against depth error in the results table),
-so its points' depth terms carry about one measurement, not one each. The defaults are those
-of the default run on held-out training frames (``benchmarks/pose_fit_sigmas.py``).
+so its points' depth terms carry about one measurement, not one each. A checkpoint trained with
+``fit_sigmas: true`` carries both per robot type, measured on held-out training frames
+(:mod:`armpose.fit_sigmas`); :class:`FitSettings`' values are the fallback, about the UR
+types' (``benchmarks/kinematic_fit_sigmas.py`` compares the two).
 """
 from __future__ import annotations
 

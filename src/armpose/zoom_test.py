@@ -185,15 +185,23 @@ def zoom_refine(forward: Callable[[torch.Tensor], dict], images: torch.Tensor, s
     :data:`DEFAULT_SETTINGS`). ``joint_counts`` (joints of each robot type, by class index):
     the box then holds only the joints of each frame's predicted type (and the base)."""
     st = {**DEFAULT_SETTINGS, **(settings or {})}
+    turns, scales, cams = second_look_views(images, single, camera, st, joint_counts)
+    views = warp_images(images, turns, scales, cams).contiguous(memory_format=torch.channels_last)
+    return zoom_combine(single, forward(views), turns, scales, cams, mask_threshold, joint_counts, float(st["weight"]))
+
+
+def second_look_views(images: torch.Tensor, single: dict, camera: CameraLike, settings: dict,
+                      joint_counts: list[int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(turns, scales, cameras)`` of the second look at ``images`` (B, 3, H, W), from the first
+    pass's outputs ``single``: :func:`zoom_views` of its base and the joints of its predicted type."""
     cams = camera_rows(camera, images.shape[0])
     joints = single["joints"].float()
     valid = torch.cat([valid_slots(single["type_logits"], joints.shape[1], joint_counts),
                        torch.ones(joints.shape[0], 1, dtype=torch.bool, device=joints.device)], 1)
     points = torch.cat([joints, single["base"].float()[:, None]], 1).detach().double().cpu().numpy()
     turns, scales = zoom_views(points, valid.cpu().numpy(), cams, (images.shape[-1], images.shape[-2]),
-                               float(st["fill"]), check_max_zoom(st["max_zoom"]))
-    views = warp_images(images, turns, scales, cams).contiguous(memory_format=torch.channels_last)
-    return zoom_combine(single, forward(views), turns, scales, cams, mask_threshold, joint_counts, float(st["weight"]))
+                               float(settings["fill"]), check_max_zoom(settings["max_zoom"]))
+    return turns, scales, cams
 
 
 def forward_with_zoom(model, images: torch.Tensor, camera: CameraLike, settings: dict | None = None,
