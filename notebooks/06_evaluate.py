@@ -178,6 +178,18 @@ test = metrics["transfer"]["test"]
 display(Markdown("\n".join(report.source_section(test["by_source"]))))
 
 # %% [markdown]
+# ## Recorded test recordings, one by one
+#
+# `by_recording` in `metrics.json`: each recorded test recording on its own (single pass). A
+# recording is one scene, one lighting and one camera path, and a family has only a few, so one
+# recording far off the others moves the family's median. The depth ratio says which way: below 1,
+# the network placed the robot too close; the joint median at true depth is what is left once
+# each joint slides along its ray to the true depth.
+
+# %%
+display(Markdown("\n".join(report.recording_section(test.get("by_recording", {})))))
+
+# %% [markdown]
 # ## Camera-to-robot pose: one image against ten of a static camera
 #
 # The predicted base and joints aligned with forward kinematics (robust rigid fit) give the pose of

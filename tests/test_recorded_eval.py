@@ -12,10 +12,10 @@ from armpose.camera_pose import robust_rigid
 from armpose.geometry import invert
 from armpose.labels.dataset import SOURCE_CODES, recorded_test_names, split_for
 from armpose.pose_eval import pooled_errors, pose_errors, spread_chunks
-from armpose.report import camera_pose_section, sequence_section, source_section
+from armpose.report import camera_pose_section, recording_section, sequence_section, source_section
 from armpose.robots import get_robot
 from armpose.robots.kinematics import Kinematics
-from armpose.sequence_eval import sequence_errors, sequence_metrics
+from armpose.sequence_eval import metrics_by_recording, sequence_errors, sequence_metrics
 
 # --------------------------------------------------------------------------- split
 
@@ -106,8 +106,9 @@ def _fake_split(rng):
              "joints": np.repeat(rng.normal(0, 0.3, (1, 7, 3)) + [0, 0, 2], n, axis=0),
              "joint_valid": np.tile(np.r_[np.ones(6, bool), False], (n, 1))}
     arrays = {"frame": np.r_[np.arange(30)[::-1], np.arange(30), 0]}            # recording 0 stored out of order
-    index = {"recordings": [{"name": "a", "static_camera": True}, {"name": "b", "static_camera": False},
-                            {"name": "c", "static_camera": False}]}
+    index = {"recordings": [{"name": "a", "robot": "panda", "static_camera": True},
+                            {"name": "b", "robot": "ur3", "static_camera": False},
+                            {"name": "c", "robot": "ur3", "static_camera": False}]}
     return truth, arrays, index
 
 
@@ -124,6 +125,28 @@ def test_sequence_metrics_per_family_and_camera_with_the_jitter_reduction():
     assert a["kalman"]["jitter_mm"] < a["unfiltered"]["jitter_mm"]
     lines = "\n".join(sequence_section(m))
     assert "Jitter reduction" in lines and "kalman" in lines and "static camera" in lines
+
+
+def test_metrics_by_recording_find_the_recording_placed_too_close():
+    truth, arrays, index = _fake_split(np.random.default_rng(3))
+    n = len(truth["type"])
+    truth.update(base=truth["joints"][:, 0].copy(), intrinsics=np.tile([300.0, 300.0, 128.0, 106.0], (n, 1)))
+    joints = truth["joints"].copy()
+    joints[:30] *= 0.8                                   # recording 0: every point 20 % nearer the camera
+    pred = {"joints": joints, "base": joints[:, 0].copy(), "type": truth["type"].copy(),
+            "mask_counts": np.tile([95, 5, 5, 100], (n, 1))}
+    pred["type"][30:40] = 1                              # recording 1: a third typed wrong
+    m = metrics_by_recording(pred, truth, index, arrays, 1.0)
+    assert list(m) == ["a", "b"]                         # recorded test recordings only, not the synthetic frame
+    a, b = m["a"], m["b"]
+    assert a["camera"] == "static" and b["camera"] == "moving" and a["frames"] == b["frames"] == 30
+    assert a["frame_depth_ratio_median"] == pytest.approx(0.8) and b["frame_depth_ratio_median"] == pytest.approx(1.0)
+    assert a["joint_median_cm"] > 30 and a["joint_median_true_depth_cm"] == pytest.approx(0.0, abs=1e-6)
+    assert b["joint_median_cm"] == pytest.approx(0.0, abs=1e-6)
+    assert a["type_accuracy"] == 1.0 and b["type_accuracy"] == pytest.approx(2 / 3)
+    text = "\n".join(recording_section(m))
+    assert "| a | " in text and "| 0.800 |" in text and "| 66.7 |" in text
+    assert recording_section({}) == []
 
 
 def test_no_recorded_test_data_gives_empty_sections():

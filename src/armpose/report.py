@@ -105,6 +105,7 @@ def results_table(metrics: Mapping, data_note: str, headline: str = "single") ->
     for key in PASS_OPTIONS:
         out += option_section(key, single, test.get(key, {}), metrics.get("latency", {}))
     out += source_section(metrics["transfer"]["test"].get("by_source", {}))
+    out += recording_section(metrics["transfer"]["test"].get("by_recording", {}))
     out += camera_pose_section(metrics["transfer"]["test"].get("camera_pose", {}))
     out += sequence_section(metrics["transfer"]["test"].get("sequence", {}))
     lat = metrics.get("latency", {})
@@ -206,6 +207,25 @@ def source_section(by_source: Mapping) -> list[str]:
             if m.get("frames"):
                 out.append(f"| {source} | {f} | {m['frames']} | {100 * m['mask_accuracy']:.1f} | "
                            f"{100 * m['type_accuracy']:.1f} | {m['joint_median_cm']:.2f} | {m['base_median_cm']:.2f} |")
+    return out
+
+
+def recording_section(by_recording: Mapping) -> list[str]:
+    """Markdown lines: each recorded test recording on its own (single pass), with the depth
+    ratio its frames share (predicted over true; below 1: placed too close)."""
+    if not by_recording:
+        return []
+    out = ["", "## Recorded test recordings, one by one (two-stage transfer, single pass)", "",
+           "Depth ratio: per frame, the median over its joints of predicted over true depth; the median "
+           "over the recording's frames (below 1: the robot placed too close).", "",
+           "| Recording | robot | camera | frames | mask acc % | type acc % | joint median cm | "
+           "joint median at true depth cm | base median cm | depth ratio |",
+           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for name, m in by_recording.items():
+        out.append(f"| {name} | {m['robot']} | {m['camera']} | {m['frames']} | {100 * m['mask_accuracy']:.1f} | "
+                   f"{100 * m['type_accuracy']:.1f} | {m['joint_median_cm']:.2f} | "
+                   f"{m['joint_median_true_depth_cm']:.2f} | {m['base_median_cm']:.2f} | "
+                   f"{m['frame_depth_ratio_median']:.3f} |")
     return out
 
 

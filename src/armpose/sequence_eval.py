@@ -15,7 +15,8 @@ default tuning at ``fps``), with the labelled joints:
   ``100 * (1 - filtered / unfiltered)``.
 
 Blocks are given for all recorded test recordings, per family and per camera kind (``static``:
-tripod recordings, ``moving``: handheld ones).
+tripod recordings, ``moving``: handheld ones). :func:`metrics_by_recording` gives the per-frame
+metrics of each recording on its own.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ import logging
 import numpy as np
 
 from armpose.labels.dataset import SOURCE_CODES
+from armpose.metrics import frame_depth_ratio, summarise
 from armpose.sequence import make_filter
 from armpose.tracking import filter_sequence, jitter
 
@@ -105,4 +107,27 @@ def sequence_metrics(pred: dict, truth: dict, index: dict, arrays: dict, familie
     a = out["all"]
     log.info("sequences: %d recordings, jitter %.2f mm/frame^2 unfiltered, %s", a["recordings"], a[RAW]["jitter_mm"],
              ", ".join(f"{f} {a[f]['jitter_mm']:.2f} ({a[f]['jitter_reduction']:.1f}x less)" for f in filters))
+    return out
+
+
+RECORDING_KEYS = ("frames", "mask_accuracy", "type_accuracy", "joint_median_cm", "base_median_cm",
+                  "joint_median_true_depth_cm")
+
+
+def metrics_by_recording(pred: dict, truth: dict, index: dict, arrays: dict, pixel_scale: float) -> dict:
+    """Per recorded test recording, keyed by its name in ``index["recordings"]``: ``robot``,
+    ``camera`` (``static``: tripod, ``moving``: handheld), the :data:`RECORDING_KEYS` of
+    :func:`armpose.metrics.summarise` and ``frame_depth_ratio_median``, the median over its frames
+    of :func:`armpose.metrics.frame_depth_ratio` (predicted over true depth that a frame's joints
+    share; below 1: the robot placed too close). One recording is one scene, lighting and camera
+    path, so a family's median can hide one recording far off the others."""
+    out = {}
+    for r, pos in recorded_sequences(truth, arrays).items():
+        rec = index["recordings"][r]
+        m = summarise(pred, truth, pos, pixel_scale)
+        ratio = frame_depth_ratio(pred["joints"][pos], truth["joints"][pos], truth["joint_valid"][pos])
+        out[rec["name"]] = {"robot": rec["robot"], "camera": "static" if rec.get("static_camera") else "moving",
+                            **{k: m[k] for k in RECORDING_KEYS},
+                            "frame_depth_ratio_median": float(np.nanmedian(ratio)) if np.isfinite(ratio).any()
+                            else float("nan")}
     return out

@@ -117,16 +117,18 @@ def recorded_metrics(pred_truth: tuple[dict, dict], data_dir: Path, root: Path, 
                      camera_pose: bool) -> dict:
     """Camera-to-robot pose per family (single images on the synthetic test set; single and pooled
     images on the static-camera test recordings; :mod:`armpose.pose_eval`; ``evaluate.pose_fit``
-    rays: also the rigid fit alone, under ``rigid``), if ``camera_pose``, and
-    raw against filtered sequence metrics on the recorded test recordings (:mod:`armpose.sequence_eval`)."""
+    rays: also the rigid fit alone, under ``rigid``), if ``camera_pose``,
+    raw against filtered sequence metrics on the recorded test recordings (:mod:`armpose.sequence_eval`),
+    and the single pass's metrics per recorded test recording (:func:`armpose.sequence_eval.metrics_by_recording`)."""
     from armpose.labels.dataset import load_dataset
     from armpose.pose_eval import camera_pose_metrics
-    from armpose.sequence_eval import sequence_metrics
+    from armpose.sequence_eval import metrics_by_recording, sequence_metrics
     pred, truth = pred_truth
     arrays, index = load_dataset(data_dir)
     cfg, families = params["evaluate"], family_of(list(params["base"]["robot_types"]))
     out = {"sequence": sequence_metrics(pred, truth, index, arrays, families, float(params["record"]["fps"]),
-                                        list(cfg.get("sequence_filters", ["kalman"])))}
+                                        list(cfg.get("sequence_filters", ["kalman"]))),
+           "by_recording": metrics_by_recording(pred, truth, index, arrays, pixel_scale_of(params["base"]))}
     fit = cfg.get("pose_fit", "rigid")
     if fit not in ("rigid", "rays"):
         raise ValueError(f"evaluate.pose_fit must be 'rigid' or 'rays', got {fit!r}")
