@@ -16,12 +16,21 @@ def test_sigmas_are_the_median_ray_error_and_the_scaled_log_depth_error():
     truth["joint_valid"][:30, 6] = False                                   # a 6-joint type
     shift, scale = 0.01, 1.05                                              # every ray off by 0.01, every depth by 5 %
     pred = {"joints": truth["joints"] * scale + np.array([shift, 0.0, 0.0]) * truth["joints"][..., 2:] * scale,
-            "base": truth["base"] * scale + np.array([shift, 0.0, 0.0]) * truth["base"][:, 2:] * scale}
+            "base": truth["base"] * scale + np.array([shift, 0.0, 0.0]) * truth["base"][:, 2:] * scale,
+            "type": truth["type"].copy()}
     out = sigmas_from_predictions(pred, truth, ["ur3", "ur5", "ur10", "iiwa", "panda"])
     assert set(out) == {"ur3", "panda"} and out["ur3"]["frames"] == 30
     assert out["ur3"]["ray_sigma"] == pytest.approx(0.01, abs=1e-5)
     assert out["ur3"]["log_depth_sigma"] == pytest.approx(np.log(1.05) * np.sqrt(7), abs=1e-4)   # base + 6 joints
     assert out["panda"]["log_depth_sigma"] == pytest.approx(np.log(1.05) * np.sqrt(8), abs=1e-4)
+    assert out["ur3"]["depth_ratio"] == out["panda"]["depth_ratio"] == pytest.approx(1.05)
+    pred["joints"][10:30] *= 0.9 / scale                                   # twenty UR3 frames typed as Panda, 10 % too close
+    pred["type"][10:30] = 4
+    out = sigmas_from_predictions(pred, truth, ["ur3", "ur5", "ur10", "iiwa", "panda"])
+    assert out["ur3"]["depth_ratio"] == pytest.approx(1.05)                # over the frames typed as each type,
+    assert out["panda"]["depth_ratio"] == pytest.approx((1.05 + 0.9) / 2)  # not the true type's (0.9 for UR3)
+    pred["type"][:] = 4                                                    # no frame typed UR3: no ratio for it
+    assert "depth_ratio" not in sigmas_from_predictions(pred, truth, ["ur3", "ur5", "ur10", "iiwa", "panda"])["ur3"]
 
 
 def test_held_out_rows_are_training_rows_outside_the_used_ones(tiny_project):

@@ -11,7 +11,10 @@ when the network was trained for it, and stores them in its checkpoint (``extra.
 - ``ray_sigma``: the median distance between predicted and true rays (``x/z, y/z``) over the base
   and valid joints;
 - ``log_depth_sigma``: the median ``|log(z_pred / z_true)|`` times the square root of the points
-  per frame (a frame's depth errors are nearly one shared error; see :mod:`armpose.kinematic_fit`).
+  per frame (a frame's depth errors are nearly one shared error; see :mod:`armpose.kinematic_fit`);
+- ``depth_ratio``: over the frames the network *types* as this robot (the fit is chosen by the
+  predicted type), the median of :func:`armpose.metrics.frame_depth_ratio`, predicted over true
+  depth; the fit divides the points by it (``benchmarks/depth_bias.py`` checks it on the test split).
 
 ``evaluate`` and ``armpose predict --fit`` read them with :func:`checkpoint_fit_sigmas`; a type
 without them (no held-out frames) uses :class:`armpose.kinematic_fit.FitSettings`' defaults.
@@ -28,6 +31,7 @@ import torch
 from armpose.data import LabelledFrames, split_indices
 from armpose.io import atomic_write_bytes
 from armpose.labels.dataset import load_dataset
+from armpose.metrics import frame_depth_ratio
 from armpose.robots import get_robot
 from armpose.train import load_checkpoint, load_model
 from armpose.zoom_test import settings_from_config, trained_for_zoom, zoom_refine
@@ -48,8 +52,10 @@ def held_out_rows(data_dir: Path, used: np.ndarray, types: list[int], seed: int,
 
 
 def sigmas_from_predictions(pred: dict, truth: dict, robot_types: list[str]) -> dict:
-    """``{robot type: {ray_sigma, log_depth_sigma, frames}}`` from per-frame predictions (the keys of
-    :func:`armpose.evaluate.predict_split`) against the truth, per true robot type."""
+    """``{robot type: {ray_sigma, log_depth_sigma, frames[, depth_ratio]}}`` from per-frame
+    predictions (the keys of :func:`armpose.evaluate.predict_split`) against the truth: the sigmas
+    per true robot type, ``depth_ratio`` per predicted type (``pred["type"]``; absent for a type
+    no frame was typed as)."""
     p = np.concatenate([pred["base"][:, None], pred["joints"]], axis=1)
     t = np.concatenate([truth["base"][:, None], truth["joints"]], axis=1)
     valid = np.concatenate([np.ones((len(p), 1), bool), truth["joint_valid"]], axis=1) & (p[..., 2] > 1e-3)
@@ -64,18 +70,23 @@ def sigmas_from_predictions(pred: dict, truth: dict, robot_types: list[str]) -> 
             out[name] = {"ray_sigma": round(float(np.median(ray[m])), 5),
                          "log_depth_sigma": round(float(np.median(depth[m]) * np.sqrt(m.sum() / frames.sum())), 5),
                          "frames": int(frames.sum())}
+    ratio = frame_depth_ratio(pred["joints"], truth["joints"], truth["joint_valid"])
+    for k, name in enumerate(robot_types):
+        typed = (np.asarray(pred["type"]) == k) & np.isfinite(ratio)
+        if name in out and typed.any():
+            out[name]["depth_ratio"] = round(float(np.median(ratio[typed])), 5)
     return out
 
 
 @torch.no_grad()
 def held_out_points(model, config: dict, data_dir: Path, rows: np.ndarray, batch_size: int = 32) -> tuple[dict, dict]:
-    """``(pred, truth)``: the network's base and joints on ``rows`` (through the zoom test when it was
-    trained for it, as the fit will see them) and the labels, per-frame numpy arrays."""
+    """``(pred, truth)``: the network's base, joints and type on ``rows`` (through the zoom test when
+    it was trained for it, as the fit will see them) and the labels, per-frame numpy arrays."""
     frames = LabelledFrames(Path(data_dir), rows)
     counts = [get_robot(t).num_joints for t in frames.robot_types]
     zoom, settings = trained_for_zoom(config), settings_from_config(config)
     threshold = float(getattr(model, "mask_threshold", 0.0))
-    parts = {"joints": [], "base": []}
+    parts = {"joints": [], "base": [], "type": []}
     for start in range(0, len(frames), batch_size):
         items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
         images = torch.stack([it["image"] for it in items]).contiguous(memory_format=torch.channels_last)
@@ -83,8 +94,9 @@ def held_out_points(model, config: dict, data_dir: Path, rows: np.ndarray, batch
         if zoom:
             cams = torch.stack([it["intrinsics"] for it in items])
             out = zoom_refine(model, images, out, cams, settings, counts, threshold)
-        for k in parts:
+        for k in ("joints", "base"):
             parts[k].append(out[k].double().numpy())
+        parts["type"].append(out["type_logits"].argmax(1).numpy())
     arrays, _ = load_dataset(Path(data_dir))
     truth = {"joints": np.asarray(arrays["joints"][rows], np.float64), "base": np.asarray(arrays["base"][rows], np.float64),
              "joint_valid": np.asarray(arrays["joint_valid"][rows], bool), "type": np.asarray(arrays["robot"][rows], np.int64)}

@@ -25,8 +25,11 @@ radians.
 Sigmas. ``ray_sigma`` is the network's median ray error; ``log_depth_sigma`` its median
 log-depth error times the square root of the number of points, because a frame's depth errors
 are nearly all one shared error (frame depth error against depth error in the results table),
-so its points' depth terms carry about one measurement, not one each. A checkpoint trained with
-``fit_sigmas: true`` carries both per robot type, measured on held-out training frames
+so its points' depth terms carry about one measurement, not one each. ``depth_ratio`` is the
+network's typical predicted over true depth: below 1 for the larger robots, which it places too
+close (as if it pulled every robot's size towards the mean); the points are divided by it before
+the fit, so the depth terms are centred on depths without that bias. A checkpoint trained with
+``fit_sigmas: true`` carries all three per robot type, measured on held-out training frames
 (:mod:`armpose.fit_sigmas`); :class:`FitSettings`' values are the fallback, about the UR
 types' (``benchmarks/kinematic_fit_sigmas.py`` compares the two).
 """
@@ -52,6 +55,7 @@ class FitSettings:
 
     ray_sigma: float = 0.012
     log_depth_sigma: float = 0.18
+    depth_ratio: float = 1.0      # the network's typical predicted over true depth: points are divided by it first
     starts: int = 128
     hypotheses: int = 4
     point_iters: int = 3
@@ -143,10 +147,12 @@ def fit_robot(points: np.ndarray, robot: str, settings: FitSettings | None = Non
     """The kinematic fit of robot type ``robot`` to the network's ``points`` (B, J + 1, 3): its
     base then its J joints, metres, camera frame. Returns numpy arrays: ``points`` (B, J + 1, 3)
     the fitted base and joints, ``q`` (B, J) radians, ``T_cam_base`` (B, 4, 4) and ``cost``
-    (B,), the final weighted squared residual per frame."""
+    (B,), the final weighted squared residual per frame. The points are first divided by
+    ``settings.depth_ratio`` (a move along their rays), so that the depth terms are centred on
+    depths without the network's typical bias."""
     st = settings or FitSettings()
     spec = get_robot(robot)
-    target = torch.as_tensor(np.asarray(points, np.float64))
+    target = torch.as_tensor(np.asarray(points, np.float64) / float(st.depth_ratio))   # along the rays
     if target.ndim != 3 or target.shape[1:] != (spec.num_joints + 1, 3):
         raise ValueError(f"fit_robot({robot!r}) needs points (B, {spec.num_joints + 1}, 3), got {tuple(target.shape)}")
     if not torch.isfinite(target).all():
@@ -190,7 +196,8 @@ def fit_predictions(joints: np.ndarray, base: np.ndarray, types: np.ndarray, rob
     (B, 3), ``types`` (B,) class indices into ``robot_types``. Returns ``joints`` (B, max_joints,
     3) (unused slots as given), ``base`` (B, 3), ``q`` (B, max_joints) radians (NaN in unused
     slots), ``T_cam_base`` (B, 4, 4) and ``cost`` (B,). ``sigmas`` (robot type -> ``ray_sigma``,
-    ``log_depth_sigma``; :mod:`armpose.fit_sigmas`) override ``settings`` per type."""
+    ``log_depth_sigma`` and, when measured, ``depth_ratio``; :mod:`armpose.fit_sigmas`) override
+    ``settings`` per type."""
     joints, base, types = np.asarray(joints, np.float64), np.asarray(base, np.float64), np.asarray(types)
     out = {"joints": joints.copy(), "base": base.copy(), "q": np.full(joints.shape[:2], np.nan),
            "T_cam_base": np.tile(np.eye(4), (len(types), 1, 1)), "cost": np.zeros(len(types))}
@@ -200,7 +207,8 @@ def fit_predictions(joints: np.ndarray, base: np.ndarray, types: np.ndarray, rob
         st = settings or FitSettings()
         own = (sigmas or {}).get(robot_types[k])
         if own:
-            st = replace(st, ray_sigma=float(own["ray_sigma"]), log_depth_sigma=float(own["log_depth_sigma"]))
+            st = replace(st, ray_sigma=float(own["ray_sigma"]), log_depth_sigma=float(own["log_depth_sigma"]),
+                         depth_ratio=float(own.get("depth_ratio", st.depth_ratio)))
         fit = fit_robot(np.concatenate([base[rows, None], joints[rows, :n]], 1), robot_types[k], st)
         out["base"][rows], out["joints"][rows, :n] = fit["points"][:, 0], fit["points"][:, 1:]
         out["q"][rows, :n], out["T_cam_base"][rows], out["cost"][rows] = fit["q"], fit["T_cam_base"], fit["cost"]
