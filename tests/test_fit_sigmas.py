@@ -1,6 +1,7 @@
 """armpose.fit_sigmas: the fit's weights from a network's errors on held-out training frames."""
 import numpy as np
 import pytest
+import torch
 
 from armpose.data import split_indices
 from armpose.fit_sigmas import held_out_rows, sigmas_from_predictions
@@ -47,12 +48,13 @@ def test_held_out_rows_are_training_rows_outside_the_used_ones(tiny_project):
 
 
 def test_add_fit_sigmas_measures_held_out_frames_and_stores_them_once(tiny_project, tmp_path):
-    from armpose.fit_sigmas import add_fit_sigmas, checkpoint_fit_sigmas
+    from armpose.fit_sigmas import FIT_SIGMAS_VERSION, add_fit_sigmas, checkpoint_fit_sigmas
     from armpose.model import build_model
     from armpose.train import save_checkpoint
     root, tparams = tiny_project
     data = root / "data" / "labels"
     base = {**tparams["base"], "model": {"width": 8}}
+    old_sigmas = {"ur3": {"ray_sigma": 1.0, "log_depth_sigma": 1.0, "frames": 1}}
     cfg = {"robots": ["ur3", "panda"], "augment": {"zoom": {"p": 0.5}}}
     ckpt = tmp_path / "model.pt"
     save_checkpoint(ckpt, build_model(base["model"]), None, None, 1, "transfer_stage2",
@@ -65,3 +67,9 @@ def test_add_fit_sigmas_measures_held_out_frames_and_stores_them_once(tiny_proje
     assert checkpoint_fit_sigmas(ckpt) == sigmas
     stored = ckpt.read_bytes()
     assert add_fit_sigmas(ckpt, data, used, seed=0) == sigmas and ckpt.read_bytes() == stored
+    old = torch.load(ckpt, weights_only=True)
+    assert old["extra"]["fit_sigmas_version"] == FIT_SIGMAS_VERSION
+    old["extra"]["fit_sigmas"] = old_sigmas                             # sigmas of an older version
+    del old["extra"]["fit_sigmas_version"]
+    torch.save(old, ckpt)
+    assert add_fit_sigmas(ckpt, data, used, seed=0) == sigmas == checkpoint_fit_sigmas(ckpt)   # measured again

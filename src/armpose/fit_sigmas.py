@@ -38,6 +38,7 @@ from armpose.zoom_test import settings_from_config, trained_for_zoom, zoom_refin
 
 log = logging.getLogger(__name__)
 HELD_OUT_PER_TYPE = 200
+FIT_SIGMAS_VERSION = 2   # 2: with depth_ratio. A checkpoint measured by another version is measured again
 
 
 def held_out_rows(data_dir: Path, used: np.ndarray, types: list[int], seed: int,
@@ -106,15 +107,16 @@ def held_out_points(model, config: dict, data_dir: Path, rows: np.ndarray, batch
 def add_fit_sigmas(checkpoint: Path, data_dir: Path, used_rows: np.ndarray, seed: int) -> dict:
     """Measure the fit sigmas of ``checkpoint`` on held-out training frames of its robot types
     (outside ``used_rows``) and store them in its ``extra.fit_sigmas`` (atomically). A checkpoint
-    that holds them already is left as it is. Returns the sigmas."""
+    that holds them already, measured by this :data:`FIT_SIGMAS_VERSION`, is left as it is (a
+    resumed, finished stage); one measured by another version is measured again. Returns the sigmas."""
     ckpt = load_checkpoint(Path(checkpoint))
-    if "fit_sigmas" in ckpt["extra"]:
+    if "fit_sigmas" in ckpt["extra"] and ckpt["extra"].get("fit_sigmas_version") == FIT_SIGMAS_VERSION:
         return ckpt["extra"]["fit_sigmas"]
     model, config = load_model(Path(checkpoint))
     types = list(config["base"]["robot_types"])
     rows = held_out_rows(data_dir, used_rows, [types.index(r) for r in config["cfg"]["robots"]], seed)
     sigmas = sigmas_from_predictions(*held_out_points(model, config, data_dir, rows), types) if len(rows) else {}
-    ckpt["extra"]["fit_sigmas"] = sigmas
+    ckpt["extra"]["fit_sigmas"], ckpt["extra"]["fit_sigmas_version"] = sigmas, FIT_SIGMAS_VERSION
     buf = io.BytesIO()
     torch.save(ckpt, buf)
     atomic_write_bytes(Path(checkpoint), buf.getvalue())
