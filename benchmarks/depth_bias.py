@@ -28,7 +28,7 @@ import numpy as np
 
 from armpose.config import load_params
 from armpose.evaluate import family_of, fitted, predict_split
-from armpose.fit_sigmas import checkpoint_fit_sigmas
+from armpose.fit_sigmas import checkpoint_fit_sigmas, depth_ratios
 from armpose.io import atomic_write_json
 from armpose.kinematic_fit import FitSettings
 from armpose.metrics import frame_depth_ratio
@@ -37,18 +37,6 @@ from armpose.zoom_test import settings_from_config
 from checkpoint_cli import load_checkpoint_from_cli
 from kinematic_fit_sigmas import medians
 from ray_bone_fit import held_out_rows
-
-
-def ratio_per_predicted_type(pred: dict, truth: dict, num_types: int) -> np.ndarray:
-    """``(num_types,)``: the median frame depth ratio of the frames predicted as each type (1 where
-    none were)."""
-    ratio = frame_depth_ratio(pred["joints"], truth["joints"], truth["joint_valid"])
-    out = np.ones(num_types)
-    for t in range(num_types):
-        sel = (pred["type"] == t) & np.isfinite(ratio)
-        if sel.any():
-            out[t] = float(np.median(ratio[sel]))
-    return out
 
 
 def corrected(pred: dict, ratio: np.ndarray) -> dict:
@@ -63,7 +51,8 @@ def main() -> None:
     settings = settings_from_config(config)
     rows = held_out_rows(data_dir, load_params(root / "params.yaml"))
     held, held_truth = predict_split(model, data_dir, "train", rows=rows, zoom=True, zoom_settings=settings)
-    ratio = ratio_per_predicted_type(held["zoom"], held_truth, len(types))
+    found = depth_ratios(held["zoom"], held_truth, types)
+    ratio = np.array([found.get(t, 1.0) for t in types])          # 1: no frame typed as it
     pred, truth = predict_split(model, data_dir, "test", zoom=True, zoom_settings=settings)
     zoom, fixed = pred["zoom"], corrected(pred["zoom"], ratio)
     families = np.array(family_of(types))[truth["type"]]

@@ -71,11 +71,22 @@ def sigmas_from_predictions(pred: dict, truth: dict, robot_types: list[str]) -> 
             out[name] = {"ray_sigma": round(float(np.median(ray[m])), 5),
                          "log_depth_sigma": round(float(np.median(depth[m]) * np.sqrt(m.sum() / frames.sum())), 5),
                          "frames": int(frames.sum())}
+    for name, r in depth_ratios(pred, truth, robot_types).items():
+        if name in out:
+            out[name]["depth_ratio"] = round(r, 5)
+    return out
+
+
+def depth_ratios(pred: dict, truth: dict, robot_types: list[str]) -> dict[str, float]:
+    """``{robot type: ratio}``: over the frames ``pred["type"]`` types as each robot, the median of
+    :func:`armpose.metrics.frame_depth_ratio` (predicted over true depth); types no frame was typed
+    as are left out."""
     ratio = frame_depth_ratio(pred["joints"], truth["joints"], truth["joint_valid"])
+    out = {}
     for k, name in enumerate(robot_types):
         typed = (np.asarray(pred["type"]) == k) & np.isfinite(ratio)
-        if name in out and typed.any():
-            out[name]["depth_ratio"] = round(float(np.median(ratio[typed])), 5)
+        if typed.any():
+            out[name] = float(np.median(ratio[typed]))
     return out
 
 
