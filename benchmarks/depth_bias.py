@@ -56,15 +56,15 @@ def main() -> None:
     pred, truth = predict_split(model, data_dir, "test", zoom=True, zoom_settings=settings)
     zoom, fixed = pred["zoom"], corrected(pred["zoom"], ratio)
     families = np.array(family_of(types))[truth["type"]]
+    test_ratio = frame_depth_ratio(zoom["joints"], truth["joints"], truth["joint_valid"])
     stored = checkpoint_fit_sigmas(root / args.checkpoint)
     plain = {t: {k: v for k, v in s.items() if k != "depth_ratio"} for t, s in stored.items()}
     with_ratio = {t: {**s, "depth_ratio": float(ratio[types.index(t)])} for t, s in plain.items()}
     out = {"checkpoint": str(args.checkpoint), "held_out_frames": int(len(rows)), "test_frames": int(len(truth["type"])),
            "held_out_ratio_per_predicted_type": {t: round(float(r), 4) for t, r in zip(types, ratio)},
            "stored_ratio": {t: s.get("depth_ratio") for t, s in stored.items()},
-           "test_ratio_per_true_type": {t: round(float(np.nanmedian(frame_depth_ratio(
-               zoom["joints"], truth["joints"], truth["joint_valid"])[truth["type"] == k])), 4)
-               for k, t in enumerate(types) if (truth["type"] == k).any()},
+           "test_ratio_per_true_type": {t: round(float(np.nanmedian(test_ratio[truth["type"] == k])), 4)
+                                        for k, t in enumerate(types) if (truth["type"] == k).any()},
            "test_medians": {"zoom_test": medians(zoom, truth, families),
                             "zoom_test_corrected": medians(fixed, truth, families),
                             "fit": medians(fitted(zoom, types, FitSettings(), plain), truth, families),

@@ -81,6 +81,11 @@ def summarise_sequences(per_rec: list[dict], frames: int, filters: list[str]) ->
     return block
 
 
+def camera_kind(recording: dict) -> str:
+    """``static`` for a tripod recording of the index, ``moving`` for a handheld one."""
+    return "static" if recording.get("static_camera") else "moving"
+
+
 def sequence_metrics(pred: dict, truth: dict, index: dict, arrays: dict, families: list[str], fps: float,
                      filters: list[str]) -> dict:
     """Sequence metrics of every recorded test recording (:func:`recorded_sequences`):
@@ -93,7 +98,7 @@ def sequence_metrics(pred: dict, truth: dict, index: dict, arrays: dict, familie
         times = arrays["frame"][truth["row"][pos]].astype(np.float64) / fps
         errs[r] = sequence_errors(pred["joints"][pos][:, valid], truth["joints"][pos][:, valid], times, filters, fps)
         fam[r], frames[r] = families[int(truth["type"][pos[0]])], len(pos)
-        cam[r] = "static" if index["recordings"][r].get("static_camera") else "moving"
+        cam[r] = camera_kind(index["recordings"][r])
 
     def block(recs: list[int]) -> dict:
         return summarise_sequences([errs[r] for r in recs], sum(frames[r] for r in recs), filters)
@@ -126,7 +131,7 @@ def metrics_by_recording(pred: dict, truth: dict, index: dict, arrays: dict, pix
         rec = index["recordings"][r]
         m = summarise(pred, truth, pos, pixel_scale)
         ratio = frame_depth_ratio(pred["joints"][pos], truth["joints"][pos], truth["joint_valid"][pos])
-        out[rec["name"]] = {"robot": rec["robot"], "camera": "static" if rec.get("static_camera") else "moving",
+        out[rec["name"]] = {"robot": rec["robot"], "camera": camera_kind(rec),
                             **{k: m[k] for k in RECORDING_KEYS},
                             "frame_depth_ratio_median": float(np.nanmedian(ratio)) if np.isfinite(ratio).any()
                             else float("nan")}
