@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 
 from armpose.config import project_root
-from armpose.evaluate import load_model
+from armpose.inference import load_inference_model
 
 
 def load_checkpoint_from_cli(doc: str) -> tuple[argparse.Namespace, Path, torch.nn.Module, dict]:
@@ -23,5 +23,5 @@ def load_checkpoint_from_cli(doc: str) -> tuple[argparse.Namespace, Path, torch.
     logging.basicConfig(level=logging.WARNING)
     root = project_root()
     torch.set_num_threads(args.threads)
-    model, config = load_model(root / args.checkpoint)
+    model, config = load_inference_model(root / args.checkpoint)
     return args, root, model, config

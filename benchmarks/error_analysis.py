@@ -31,7 +31,8 @@ import torch
 
 from armpose.config import project_root
 from armpose.data import LabelledFrames, split_indices
-from armpose.evaluate import family_of, load_model, predict_split
+from armpose.evaluate import family_of, predict_split
+from armpose.inference import load_inference_model
 from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
 from armpose.metrics import frame_depth_ratio
@@ -118,7 +119,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     root = project_root()
     data_dir = root / "data" / "labels"
-    model, _ = load_model(root / args.checkpoint)
+    model, _ = load_inference_model(root / args.checkpoint)
     arrays, index = load_dataset(data_dir)
     robot_types = list(index["robot_types"])
     pred, truth = predict_split(model, data_dir, "test")

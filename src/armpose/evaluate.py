@@ -23,7 +23,8 @@ from armpose.metrics import confusion_matrix, mask_counts, summarise
 from armpose.mirror_test import forward_with_mirror
 from armpose.model import predicted_mask
 from armpose.robots import get_robot
-from armpose.train import load_checkpoint, load_model, to_channels_last  # noqa: F401 (load_model re-exported)
+from armpose.inference import load_inference_model
+from armpose.train import load_checkpoint, to_channels_last  # noqa: F401 (load_checkpoint re-exported)
 from armpose.zoom_test import settings_from_config, zoom_refine
 
 log = logging.getLogger(__name__)
@@ -153,7 +154,7 @@ def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str
     ``metrics["zoom_test"]`` and ``pred["zoom"]`` likewise for the zoom test (:mod:`armpose.zoom_test`,
     its settings from the checkpoint's config); with ``fit``, ``metrics["kinematic_fit"]`` and
     ``pred["fit"]`` for the kinematic fit (:mod:`armpose.kinematic_fit`)."""
-    model, config = load_model(checkpoint, device)
+    model, config = load_inference_model(checkpoint, device)
     pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror, zoom=zoom,
                                 zoom_settings=settings_from_config(config), fit=fit,
                                 fit_sigmas=checkpoint_fit_sigmas(checkpoint) if fit is not None else None)

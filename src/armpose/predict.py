@@ -107,11 +107,11 @@ class Predictor:
 
     def __init__(self, checkpoint: Path | str, device: str = "cpu", model=None, mirror: bool = False,
                  zoom: bool = False, fit: bool = False):
-        from armpose.evaluate import load_model
+        from armpose.inference import load_inference_model
         ckpt_path = Path(checkpoint)
         if model is None:
             try:
-                model, config = load_model(ckpt_path, device)
+                model, config = load_inference_model(ckpt_path, device)
             except (ValueError, KeyError, RuntimeError) as err:
                 raise PredictError(f"{ckpt_path}: cannot use this checkpoint ({err})") from err
         else:

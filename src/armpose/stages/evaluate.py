@@ -27,7 +27,8 @@ import numpy as np
 import torch
 
 from armpose.config import load_params, project_root
-from armpose.evaluate import evaluate_checkpoint, family_of, load_model, pixel_scale_of
+from armpose.evaluate import evaluate_checkpoint, family_of, pixel_scale_of
+from armpose.inference import load_inference_model
 from armpose.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from armpose.kinematic_fit import FitSettings
 from armpose.metrics import error_by_distance, joint_errors, project
@@ -81,7 +82,7 @@ def example_columns(checkpoint: Path, data_dir: Path, pred: dict, truth: dict, r
     from armpose.data import LabelledFrames
     rng = np.random.default_rng(seed)
     fams = np.array(family_of(robot_types))[truth["type"]]
-    model, _ = load_model(checkpoint)
+    model, _ = load_inference_model(checkpoint)
     cols = []
     for fam in dict.fromkeys(family_of(robot_types)):
         idx = np.flatnonzero(fams == fam)

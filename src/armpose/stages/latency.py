@@ -25,7 +25,7 @@ import torch
 
 from armpose.config import load_params, project_root
 from armpose.data import LabelledFrames, split_indices
-from armpose.evaluate import load_model
+from armpose.inference import load_inference_model
 from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
 from armpose.mirror_test import forward_with_mirror
@@ -111,7 +111,7 @@ def run(params: dict, root: Path | None = None) -> dict:
     root = Path(root or project_root())
     cfg = params["latency"]
     torch.set_num_threads(int(cfg["threads"]))
-    model, config = load_model(root / cfg["checkpoint"])
+    model, config = load_inference_model(root / cfg["checkpoint"])
     counts = [get_robot(t).num_joints for t in config["base"]["robot_types"]]
     data = root / "data" / "labels"
     arrays, _ = load_dataset(data)
