@@ -66,7 +66,7 @@
 # The paper's input size (256 x 212, pixel values in [0, 1]) and learning-rate range (1e-3
 # decreasing to 1e-6) are kept; the decrease is a cosine schedule after a short warm-up. A stage
 # may start on smaller frames (`low_res`, progressive resizing, `armpose.resolution`); it is off,
-# because on our budget it did not pay (README, "Progressive resizing").
+# because on our budget it did not pay (results/experiments/README.md, "Progressive resizing").
 
 # %% tags=["parameters"]
 profile = "default"

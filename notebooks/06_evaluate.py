@@ -289,7 +289,7 @@ if (results / "figures" / "f_latency.png").exists():
 #   from apparent size, and UR3, UR5 and UR10 look alike up to scale. Small robots in the image
 #   (a median of 3.5-8.2 % of the pixels per robot type, the small end of the paper's 5-22 %) and
 #   minutes of CPU training make it worse. Moving the camera from 1.2-3.5 m to 1.0-2.5 m, which gave
-#   the robot that share of the image, cut the joint medians by a quarter to two fifths (README).
+#   the robot that share of the image, cut the joint medians by a quarter to two fifths (results/experiments/README.md).
 # - **Synthetic against real:** perfect labels, but also random textures and distractor robots the
 #   paper's test set did not have. Real recordings can replace the simulated sessions
 #   (`record.recordings_dir`) and are then reported separately under `by_source` in `results/metrics.json`.

@@ -7,7 +7,7 @@ less time on the 2-core reference machine (``benchmarks/bench_low_res.py``,
 learnt as well from small images, so a run can spend its first steps there, finish at the
 full resolution and see more frames in the same wall time.
 
-Off in every profile: in a UR pretraining A/B it did not pay (README, "Progressive resizing":
+Off in every profile: in a UR pretraining A/B it did not pay (results/experiments/README.md, "Progressive resizing":
 half the input for the first 4,000 of 8,000 steps, against 6,000 full-size steps in about the
 same training time, gave a worse joint median and type accuracy).
 
@@ -26,7 +26,7 @@ The 3D labels (camera optical frame, metres) are unchanged: a resized image is t
 through a coarser sensor, and the keypoint heads work in normalised image coordinates, so
 the geometry carries over. What does not carry over is the convolutions' sense of size in
 pixels, from which the network reads depth and robot type: trained on half-size frames, it
-is far off at full size until it has trained there again (README). Validation and every
+is far off at full size until it has trained there again (results/experiments/README.md). Validation and every
 later stage run at the full resolution. Which steps are small is a function of the step
 number alone, so a resumed run takes the same path as an uninterrupted one. Only for stages
 trained from images without a plateau rule or a distillation teacher
