@@ -9,7 +9,8 @@ take it out. This script runs the zoom test (:func:`armpose.zoom_test.forward_wi
 held-out training frames of ``benchmarks/ray_bone_fit.py`` (outside both transfer sets, 200 per
 robot type) and on the test split, fits the five biases on the held-out frames only (the
 cross-entropy minimum, by L-BFGS; mean-centred) and scores type accuracy per family and the
-confusion matrix on both, without and with them. The test split never chooses anything.
+confusion matrix on both, without and with them, and on the test split the type accuracy and the
+predicted types of each recorded test recording. The test split never chooses anything.
 Written to ``--out`` as JSON (atomically).
 """
 from __future__ import annotations
@@ -23,6 +24,7 @@ from armpose.config import load_params
 from armpose.data import LabelledFrames, split_indices
 from armpose.evaluate import family_of
 from armpose.io import atomic_write_json
+from armpose.labels.dataset import load_dataset
 from armpose.robots import get_robot
 from armpose.zoom_test import forward_with_zoom, settings_from_config
 
@@ -69,20 +71,37 @@ def type_scores(logits: np.ndarray, truth: np.ndarray, types: list[str]) -> dict
     return {"type_accuracy": {**acc, "all": round(float(np.mean(pred == truth)), 4)}, "confusion": confusion.tolist()}
 
 
+def by_recording(logits: np.ndarray, truth: np.ndarray, rows: np.ndarray, data_dir, types: list[str]) -> dict:
+    """Per recorded (non-synthetic) recording among ``rows``: frames, type accuracy and the count of
+    each predicted type."""
+    arrays, index = load_dataset(data_dir)
+    recording, pred, out = np.asarray(arrays["recording"])[rows], logits.argmax(1), {}
+    for r in np.unique(recording):
+        meta = index["recordings"][int(r)]
+        if meta.get("source") == "synthetic":
+            continue
+        sel = recording == r
+        counts = np.bincount(pred[sel], minlength=len(types))
+        out[meta["name"]] = {"frames": int(sel.sum()), "type_accuracy": round(float(np.mean(pred[sel] == truth[sel])), 4),
+                             "predicted": {t: int(c) for t, c in zip(types, counts) if c}}
+    return out
+
+
 def main() -> None:
     args, root, model, config = load_checkpoint_from_cli(__doc__)
     data_dir = root / "data" / "labels"
     params = load_params(root / "params.yaml")
     types = list(params["base"]["robot_types"])
-    held_out, test = (LabelledFrames(data_dir, rows) for rows in (held_out_rows(data_dir, params),
-                                                                  split_indices(data_dir, "test")))
+    test_rows = split_indices(data_dir, "test")
+    held_out, test = LabelledFrames(data_dir, held_out_rows(data_dir, params)), LabelledFrames(data_dir, test_rows)
     (lh, yh), (lt, yt) = zoom_type_logits(model, config, held_out), zoom_type_logits(model, config, test)
     bias = fit_class_bias(lh, yh)
     result = {"checkpoint": str(args.checkpoint), "labels": types, "bias": [round(float(b), 4) for b in bias],
               "held_out": {"frames": int(len(yh)), "without": type_scores(lh, yh, types),
                            "with_bias": type_scores(lh + bias, yh, types)},
               "test": {"frames": int(len(yt)), "without": type_scores(lt, yt, types),
-                       "with_bias": type_scores(lt + bias, yt, types)}}
+                       "with_bias": type_scores(lt + bias, yt, types),
+                       "by_recording": by_recording(lt, yt, test_rows, data_dir, types)}}
     print(json.dumps(result, indent=1))
     if args.out:
         atomic_write_json(args.out, result)
