@@ -29,7 +29,7 @@
 # set (N frames per type, UR included), with the freeze list `transfer_stage2.trainable`; by
 # default `trunk.late` and `mask_decoder` join the heads, and only `trunk.early` (generic low-level
 # features) stays frozen. The learning rate restarts lower (5e-4 by default) and falls towards
-# 1e-6 over at most `max_steps` (2,400 by default); the same plateau rule ends the stage, in the
+# 1e-6 over at most `max_steps` (2,000 by default); the same plateau rule ends the stage, in the
 # default run well before that (results/experiments/README.md, "A longer stage 2"). With `transfer_stage2.distill` (on by default, see
 # notebook 04) the pretrained network keeps teaching the UR types' probabilities; the trunk now
 # trains, so the teacher runs on every training image, about 30 % more time per step.

@@ -1,7 +1,7 @@
 """Bone-length fit: each predicted point moved along its own ray so the skeleton has the robot's bones.
 
 The network reads a joint's 2D position far better than its depth (README, "Where the joint
-error comes from": slid along its ray to the true depth, a joint would be 3.5-5.3 cm off, against
+error comes from": slid along its ray to the true depth, a joint would be 3.5-5.1 cm off, against
 11-20 cm as predicted). The distance between consecutive joint origins of a robot (base ->
 joint 1 -> ... -> joint J) does not depend on its joint angles, so a skeleton whose points lie on
 the predicted rays and whose bones have the robot's lengths is pinned down up to what the rays
