@@ -24,7 +24,6 @@ from armpose.config import load_params
 from armpose.data import LabelledFrames, split_indices
 from armpose.evaluate import family_of
 from armpose.io import atomic_write_json
-from armpose.labels.dataset import load_dataset
 from armpose.robots import get_robot
 from armpose.zoom_test import forward_with_zoom, settings_from_config
 
@@ -71,11 +70,11 @@ def type_scores(logits: np.ndarray, truth: np.ndarray, types: list[str]) -> dict
     return {"type_accuracy": {**acc, "all": round(float(np.mean(pred == truth)), 4)}, "confusion": confusion.tolist()}
 
 
-def by_recording(logits: np.ndarray, truth: np.ndarray, rows: np.ndarray, data_dir, types: list[str]) -> dict:
-    """Per recorded (non-synthetic) recording among ``rows``: frames, type accuracy and the count of
-    each predicted type."""
-    arrays, index = load_dataset(data_dir)
-    recording, pred, out = np.asarray(arrays["recording"])[rows], logits.argmax(1), {}
+def by_recording(logits: np.ndarray, truth: np.ndarray, frames: LabelledFrames, types: list[str]) -> dict:
+    """Per recorded (non-synthetic) recording among the rows of ``frames``: frames, type accuracy
+    and the count of each predicted type."""
+    index = frames.meta
+    recording, pred, out = np.asarray(frames.arrays["recording"])[frames.indices], logits.argmax(1), {}
     for r in np.unique(recording):
         meta = index["recordings"][int(r)]
         if meta.get("source") == "synthetic":
@@ -92,8 +91,8 @@ def main() -> None:
     data_dir = root / "data" / "labels"
     params = load_params(root / "params.yaml")
     types = list(params["base"]["robot_types"])
-    test_rows = split_indices(data_dir, "test")
-    held_out, test = LabelledFrames(data_dir, held_out_rows(data_dir, params)), LabelledFrames(data_dir, test_rows)
+    held_out, test = (LabelledFrames(data_dir, rows) for rows in (held_out_rows(data_dir, params),
+                                                                  split_indices(data_dir, "test")))
     (lh, yh), (lt, yt) = zoom_type_logits(model, config, held_out), zoom_type_logits(model, config, test)
     bias = fit_class_bias(lh, yh)
     result = {"checkpoint": str(args.checkpoint), "labels": types, "bias": [round(float(b), 4) for b in bias],
@@ -101,7 +100,7 @@ def main() -> None:
                            "with_bias": type_scores(lh + bias, yh, types)},
               "test": {"frames": int(len(yt)), "without": type_scores(lt, yt, types),
                        "with_bias": type_scores(lt + bias, yt, types),
-                       "by_recording": by_recording(lt, yt, test_rows, data_dir, types)}}
+                       "by_recording": by_recording(lt, yt, test, types)}}
     print(json.dumps(result, indent=1))
     if args.out:
         atomic_write_json(args.out, result)

@@ -32,6 +32,7 @@ from armpose.robots import get_robot
 from armpose.zoom_test import second_look_views, settings_from_config, warp_images, zoom_combine
 
 from checkpoint_cli import load_checkpoint_from_cli
+from kinematic_fit_sigmas import medians
 from ray_bone_fit import held_out_rows
 
 KEYS = ("joints", "base", "type_logits")
@@ -58,15 +59,12 @@ def mean_estimate(outputs: list[dict]) -> dict:
 
 
 def scored(pred: dict, truth: dict, families: np.ndarray) -> dict:
-    """Joint and base medians (cm) and, when ``pred`` has types, type accuracy per family."""
-    joint = np.linalg.norm(pred["joints"] - truth["joints"], axis=-1)
-    base = np.linalg.norm(pred["base"] - truth["base"], axis=-1)
-    out = {}
-    for fam in dict.fromkeys(families.tolist()):
-        m = families == fam
-        out[fam] = {"joint_median_cm": round(100 * float(np.median(joint[m][truth["joint_valid"][m]])), 2),
-                    "base_median_cm": round(100 * float(np.median(base[m])), 2)}
-        if "type" in pred:
+    """:func:`kinematic_fit_sigmas.medians` (joint and base medians, cm, per family), plus type
+    accuracy per family when ``pred`` has types."""
+    out = medians(pred, truth, families)
+    if "type" in pred:
+        for fam in out:
+            m = families == fam
             out[fam]["type_accuracy"] = round(float(np.mean(pred["type"][m] == truth["type"][m])), 4)
     return out
 
