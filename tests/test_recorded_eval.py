@@ -157,6 +157,18 @@ def test_no_recorded_test_data_gives_empty_sections():
     assert source_section({"synthetic": {}}) == [] and camera_pose_section({}) == []
 
 
+def test_source_section_pairs_the_single_pass_with_the_headline():
+    m = {"frames": 90, "mask_accuracy": 0.95, "type_accuracy": 1.0, "joint_median_cm": 20.0, "base_median_cm": 9.0}
+    fit = {**m, "joint_median_cm": 12.5, "base_median_cm": 7.25}
+    single = {s: {"all": m, "by_family": {"KUKA": m}} for s in ("synthetic", "recorded")}
+    fitted = {s: {"all": fit, "by_family": {"KUKA": fit}} for s in ("synthetic", "recorded")}
+    text = "\n".join(source_section(single, fitted, "fit"))
+    assert "joint median cm, single / fit" in text
+    assert "| recorded | KUKA | 90 | 95.0 / 95.0 | 100.0 / 100.0 | 20.00 / 12.50 | 9.00 / 7.25 |" in text
+    plain = "\n".join(source_section(single))                       # no headline: single-pass figures only
+    assert "| recorded | KUKA | 90 | 95.0 | 100.0 | 20.00 | 9.00 |" in plain and " / " not in plain
+
+
 def test_camera_pose_section_shows_one_and_pooled_images_per_family():
     one = {"frames": 90, "images_pooled": 1, "rotation_median_deg": 3.0, "translation_median_cm": 4.0,
            "add_median_cm": 3.5, "add_auc_10cm": 0.6}

@@ -150,7 +150,8 @@ def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str
                         zoom: bool = False, fit: FitSettings | None = None) -> tuple[dict, dict, dict]:
     """``(metrics, pred, truth)`` of one checkpoint on ``split``; with ``mirror``, also
     ``metrics["mirror_test"]``: the ``all`` and ``by_family`` metrics of the mirror test
-    (:mod:`armpose.mirror_test`), and ``pred["mirror"]`` its predictions; with ``zoom``,
+    (:mod:`armpose.mirror_test`, with ``by_type``, ``by_source`` and ``confusion`` too), and
+    ``pred["mirror"]`` its predictions; with ``zoom``,
     ``metrics["zoom_test"]`` and ``pred["zoom"]`` likewise for the zoom test (:mod:`armpose.zoom_test`,
     its settings from the checkpoint's config); with ``fit``, ``metrics["kinematic_fit"]`` and
     ``pred["fit"]`` for the kinematic fit (:mod:`armpose.kinematic_fit`)."""
@@ -162,8 +163,7 @@ def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str
     for key, name in (("mirror", "mirror_test"), ("zoom", "zoom_test"), ("fit", "kinematic_fit")):
         if key in pred:
             both = metrics_by_group(pred[key], truth, list(base["robot_types"]), pixel_scale_of(base))
-            metrics[name] = {"all": both["all"], "by_family": both["by_family"], "by_type": both["by_type"],
-                             "confusion": both["confusion"]}
+            metrics[name] = {k: both[k] for k in ("all", "by_family", "by_type", "by_source", "confusion")}
     log.info("%s on %s: %s", checkpoint, split, {k: metrics["by_family"][k].get("joint_median_cm")
                                                  for k in metrics["by_family"]})
     return metrics, pred, truth

@@ -104,7 +104,8 @@ def results_table(metrics: Mapping, data_note: str, headline: str = "single") ->
     out += depth_section(ours)
     for key in PASS_OPTIONS:
         out += option_section(key, single, test.get(key, {}), metrics.get("latency", {}))
-    out += source_section(metrics["transfer"]["test"].get("by_source", {}))
+    out += source_section(test.get("by_source", {}), test.get(headline, {}).get("by_source"),
+                          PASS_OPTIONS[headline][1] if headline in PASS_OPTIONS else "")
     out += recording_section(metrics["transfer"]["test"].get("by_recording", {}))
     out += camera_pose_section(metrics["transfer"]["test"].get("camera_pose", {}))
     out += sequence_section(metrics["transfer"]["test"].get("sequence", {}))
@@ -193,21 +194,36 @@ def option_section(key: str, ours: Mapping, other: Mapping, latency: Mapping) ->
     return out
 
 
-def source_section(by_source: Mapping) -> list[str]:
-    """Markdown lines: the synthetic test set and the recorded test recordings, per family, apart."""
+def source_section(by_source: Mapping, headline_by_source: Mapping | None = None, tag: str = "") -> list[str]:
+    """Markdown lines: the synthetic test set and the recorded test recordings, per family, apart.
+    With ``headline_by_source`` (the headline variant's ``by_source``, column tag ``tag``), each
+    figure is shown as "single / headline"."""
     if "recorded" not in by_source:
         return []
+    both = bool(headline_by_source) and all(s in headline_by_source for s in by_source)
+    cols = ("mask acc %", "type acc %", "joint median cm", "base median cm")
+    head = [f"{c}, single / {tag}" for c in cols] if both else list(cols)
     out = ["", "## Synthetic test set and recorded test recordings, apart (two-stage transfer)", "",
            "Recorded: whole held-out recordings of the record stage (simulated mocap-tracked handheld and "
            "tripod sessions; their labels carry calibration and mocap error).", "",
-           "| Data | Family | frames | mask acc % | type acc % | joint median cm | base median cm |",
-           "|---|---|---:|---:|---:|---:|---:|"]
+           "| Data | Family | frames | " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(cols) + 1)]
     for source, block in by_source.items():
+        other = headline_by_source[source] if both else {}
         for f, m in {**block["by_family"], "all": block["all"]}.items():
             if m.get("frames"):
-                out.append(f"| {source} | {f} | {m['frames']} | {100 * m['mask_accuracy']:.1f} | "
-                           f"{100 * m['type_accuracy']:.1f} | {m['joint_median_cm']:.2f} | {m['base_median_cm']:.2f} |")
+                h = (other.get("by_family", {}).get(f) if f != "all" else other.get("all")) if both else None
+                out.append(f"| {source} | {f} | {m['frames']} | " + " | ".join(
+                    _pair(m, h, k, scale) for k, scale in (("mask_accuracy", 100), ("type_accuracy", 100),
+                                                           ("joint_median_cm", 1), ("base_median_cm", 1))) + " |")
     return out
+
+
+def _pair(single: Mapping, other: Mapping | None, key: str, scale: float) -> str:
+    """One cell: ``single[key]`` (times ``scale``), then `` / other[key]`` when ``other`` is given;
+    one decimal for percentages, two for centimetres."""
+    fmt = "{:.1f}" if scale == 100 else "{:.2f}"
+    cell = fmt.format(scale * single[key])
+    return cell if other is None else f"{cell} / {fmt.format(scale * other[key])}"
 
 
 def recording_section(by_recording: Mapping) -> list[str]:
