@@ -187,10 +187,8 @@ def option_section(key: str, ours: Mapping, other: Mapping, latency: Mapping) ->
            f"type acc %, single / {short} | mask acc %, single / {short} |", "|---|---:|---:|---:|---:|"]
     for f in fams:
         a, b = ours[f], other["by_family"][f]
-        out.append(f"| {f} | {a['joint_median_cm']:.2f} / {b['joint_median_cm']:.2f} | "
-                   f"{a['base_median_cm']:.2f} / {b['base_median_cm']:.2f} | "
-                   f"{100 * a['type_accuracy']:.1f} / {100 * b['type_accuracy']:.1f} | "
-                   f"{100 * a['mask_accuracy']:.1f} / {100 * b['mask_accuracy']:.1f} |")
+        out.append(f"| {f} | " + " | ".join(_pair(a, b, k, scale) for k, scale in (
+            ("joint_median_cm", 1), ("base_median_cm", 1), ("type_accuracy", 100), ("mask_accuracy", 100))) + " |")
     return out
 
 
