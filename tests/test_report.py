@@ -71,3 +71,15 @@ def test_headline_reports_the_chosen_variant_and_the_sections_compare_it_with_th
         results_table(m, "x", headline="zoom_test")                      # not run
     with pytest.raises(ValueError, match="headline"):
         results_table(m, "x", headline="best")
+
+
+def test_cpu_description_reads_the_model_and_the_widest_vector_unit(tmp_path):
+    from armpose.report import cpu_description
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\ncpu family\t: 6\nmodel\t\t: 85\nmodel name\t: Example CPU @ 2.0GHz\nflags\t\t: fpu sse4_2 avx avx2 fma\n\n"
+                    "processor\t: 1\nmodel name\t: Example CPU @ 2.0GHz\nflags\t\t: fpu sse4_2 avx avx2 fma\n")
+    assert cpu_description(info) == {"model": "Example CPU @ 2.0GHz", "family_model": "6/85",
+                                      "vector_isa": "avx2"}
+    info.write_text("model name\t: Other\nflags\t\t: sse4_2 avx2 avx512f avx512_bf16\n")
+    assert cpu_description(info)["vector_isa"] == "avx512_bf16"
+    assert cpu_description(tmp_path / "missing") == {"model": None, "family_model": None, "vector_isa": None}

@@ -327,6 +327,27 @@ def git_hash(root: Path) -> str:
     return head + ("-dirty" if changed else "")
 
 
+VECTOR_ISAS = ("avx512_fp16", "avx512_bf16", "avx512f", "avx2", "avx", "sse4_2")
+
+
+def cpu_description(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
+    """``{"model", "family_model", "vector_isa"}`` of this machine's CPU from ``cpuinfo`` (Linux):
+    the model name, its "cpu family/model" numbers (virtual machines often show a generic name)
+    and the widest of :data:`VECTOR_ISAS` it has. Floating-point results (renders, training) can
+    differ in their last bits between CPUs with different vector units, so two runs of one commit
+    are comparable bit for bit only on the same kind of CPU. ``None`` values where unreadable."""
+    try:
+        text = cpuinfo.read_text()
+    except OSError:
+        return {"model": None, "family_model": None, "vector_isa": None}
+    fields = dict(line.split(":", 1) for line in text.splitlines()[:64] if ":" in line)
+    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    flags = set(fields.get("flags", "").split())
+    numbers = (fields.get("cpu family"), fields.get("model"))
+    return {"model": fields.get("model name"), "family_model": "/".join(numbers) if all(numbers) else None,
+            "vector_isa": next((f for f in VECTOR_ISAS if f in flags), None)}
+
+
 def environment(root: Path, profile_note: str) -> dict:
     """The git hash, the machine, the package versions and the profile of this run."""
     versions = {}
@@ -337,7 +358,7 @@ def environment(root: Path, profile_note: str) -> dict:
             versions[pkg] = None
     return {"git": git_hash(root), "profile": profile_note, "python": platform.python_version(),
             "machine": {"processor": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
-                        "platform": platform.platform()},
+                        "platform": platform.platform(), "cpu": cpu_description()},
             "packages": versions}
 
 
