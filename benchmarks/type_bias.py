@@ -70,11 +70,11 @@ def type_scores(logits: np.ndarray, truth: np.ndarray, types: list[str]) -> dict
     return {"type_accuracy": {**acc, "all": round(float(np.mean(pred == truth)), 4)}, "confusion": confusion.tolist()}
 
 
-def by_recording(logits: np.ndarray, truth: np.ndarray, frames: LabelledFrames, types: list[str]) -> dict:
-    """Per recorded (non-synthetic) recording among the rows of ``frames``: frames, type accuracy
-    and the count of each predicted type."""
-    index = frames.meta
-    recording, pred, out = np.asarray(frames.arrays["recording"])[frames.indices], logits.argmax(1), {}
+def by_recording(pred: np.ndarray, truth: np.ndarray, recording: np.ndarray, index: dict, types: list[str]) -> dict:
+    """Per recorded (non-synthetic) recording: frames, type accuracy and the count of each
+    predicted type. ``pred``, ``truth``: type indices per frame; ``recording``: each frame's
+    recording id in ``index["recordings"]`` (the dataset's ``index.json``)."""
+    out = {}
     for r in np.unique(recording):
         meta = index["recordings"][int(r)]
         if meta.get("source") == "synthetic":
@@ -100,7 +100,8 @@ def main() -> None:
                            "with_bias": type_scores(lh + bias, yh, types)},
               "test": {"frames": int(len(yt)), "without": type_scores(lt, yt, types),
                        "with_bias": type_scores(lt + bias, yt, types),
-                       "by_recording": by_recording(lt, yt, test, types)}}
+                       "by_recording": by_recording(lt.argmax(1), yt, np.asarray(test.arrays["recording"])[test.indices],
+                                                     test.meta, types)}}
     print(json.dumps(result, indent=1))
     if args.out:
         atomic_write_json(args.out, result)

@@ -38,6 +38,7 @@ from armpose.zoom_test import settings_from_config
 from bone_rescale import medians
 from checkpoint_cli import load_checkpoint_from_cli
 from ray_bone_fit import held_out_rows
+from type_bias import by_recording
 
 ALPHAS = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 
@@ -90,17 +91,6 @@ def choose_alpha(scores: dict, types: list[str]) -> float:
     return max(ALPHAS, key=lambda a: (np.mean([scores[a][f]["type_accuracy"] for f in multi]), -a))
 
 
-def by_recording(chosen: np.ndarray, truth: dict, index: dict) -> dict:
-    """Type accuracy of each recorded (non-synthetic) test recording."""
-    out = {}
-    for r in np.unique(truth["recording"]):
-        meta = index["recordings"][int(r)]
-        if meta.get("source") != "synthetic":
-            sel = truth["recording"] == r
-            out[meta["name"]] = round(float(np.mean(chosen[sel] == truth["type"][sel])), 4)
-    return out
-
-
 def main() -> None:
     args, root, model, config = load_checkpoint_from_cli(__doc__)
     data_dir = root / "data" / "labels"
@@ -121,8 +111,9 @@ def main() -> None:
             chosen = rerank(pred["zoom"]["type_probs"], fits["cost"], alpha)
             result[name]["confusion"] = confusion_matrix(chosen, truth["type"], len(types)).tolist()
             _, index = load_dataset(data_dir)
-            result[name]["by_recording"] = {"network": by_recording(pred["zoom"]["type"], truth, index),
-                                            "chosen_alpha": by_recording(chosen, truth, index)}
+            result[name]["by_recording"] = {
+                source: by_recording(types_, truth["type"], truth["recording"], index, types)
+                for source, types_ in (("network", pred["zoom"]["type"]), ("chosen_alpha", chosen))}
     print(json.dumps({k: result[k] for k in ("chosen_alpha",)} | {
         s: {a: result[s]["by_alpha"][a] for a in ("0.0", str(result["chosen_alpha"]))} for s in sets}, indent=1))
     if args.out:
