@@ -56,6 +56,27 @@ def deep_merge(base: dict, override: dict) -> dict:
     return out
 
 
+def override_from_text(text: str, params: dict | None = None) -> dict:
+    """``"section.key.sub=value"`` as the nested override ``{"section": {"key": {"sub": value}}}``
+    for :func:`deep_merge`, ``value`` read as YAML (``[a, b]``, ``null``, ``0.5``; ``2e-4`` too, as
+    a float). With ``params``, the section must be one of its top-level keys."""
+    path, sep, value = text.partition("=")
+    keys = path.strip().split(".")
+    if not sep or len(keys) < 2 or not all(keys):
+        raise ValueError(f"{text!r}: expected SECTION.KEY=VALUE, e.g. transfer_stage2.lr=2e-4")
+    if params is not None and keys[0] not in params:
+        raise KeyError(f"{text!r}: params.yaml has no section {keys[0]!r} (it has {sorted(params)})")
+    node: Any = yaml.safe_load(value)
+    if isinstance(node, str):  # PyYAML reads "2e-4" (no dot) as a string
+        try:
+            node = float(node)
+        except ValueError:
+            pass
+    for key in reversed(keys):
+        node = {key: node}
+    return node
+
+
 def profile_params(name: str, root: Path | None = None) -> dict[str, Any]:
     """The full parameter set of profile ``name`` (``default``, ``quick``, ``paper``, ...)."""
     root = root or project_root()
