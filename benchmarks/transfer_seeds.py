@@ -67,13 +67,10 @@ def link_project(root: Path, work: Path) -> None:
 
 def family_scores(metrics: dict, steps: int | None) -> dict:
     """The :data:`FIGURES` of the kinematic fit (the headline) per family, in cm and %."""
-    fit = metrics["kinematic_fit"]["by_family"]
-    out = {}
-    for fam, m in fit.items():
-        out[fam] = {"frames": int(m["frames"]), "joint_median_cm": round(float(m["joint_median_cm"]), 2),
-                    "base_median_cm": round(float(m["base_median_cm"]), 2),
-                    "type_accuracy": round(100 * float(m["type_accuracy"]), 2),
-                    "mask_accuracy": round(100 * float(m["mask_accuracy"]), 2)}
+    percent = {"type_accuracy", "mask_accuracy"}
+    out = {fam: {"frames": int(m["frames"]),
+                 **{f: round((100 if f in percent else 1) * float(m[f]), 2) for f in FIGURES}}
+           for fam, m in metrics["kinematic_fit"]["by_family"].items()}
     return {"stage2_steps": steps, "by_family": out}
 
 
@@ -90,10 +87,11 @@ def spread(runs: dict) -> dict:
     return out
 
 
-def score(checkpoint: Path, root: Path, base: dict) -> dict:
-    metrics, _, _ = evaluate_checkpoint(checkpoint, root / "data" / "labels", base, zoom=True, fit=FitSettings())
-    steps = torch.load(checkpoint, map_location="cpu", weights_only=True).get("step")
-    return family_scores(metrics, steps)
+def score(stage2_dir: Path, root: Path, base: dict) -> dict:
+    """:func:`family_scores` of ``stage2_dir/model.pt``; its step count from the stage's ``summary.json``."""
+    metrics, _, _ = evaluate_checkpoint(stage2_dir / "model.pt", root / "data" / "labels", base, zoom=True,
+                                        fit=FitSettings())
+    return family_scores(metrics, json.loads((stage2_dir / "summary.json").read_text()).get("steps"))
 
 
 def main() -> None:
@@ -109,7 +107,7 @@ def main() -> None:
     for text in args.overrides:  # a typo fails here, before any training
         override_from_text(text, params)
     tag = tag_of(args.overrides)
-    runs = {"pipeline": score(root / "models" / "transfer_stage2" / "model.pt", root, params["base"])}
+    runs = {"pipeline": score(root / "models" / "transfer_stage2", root, params["base"])}
     runs["pipeline"]["seed_offset"] = int(params["transfer_stage2"].get("seed_offset", 0))
     for seed in args.seeds:
         work = root / "models" / "transfer_seeds" / tag / f"seed_{seed}"
@@ -117,7 +115,7 @@ def main() -> None:
         p = seed_params(params, seed, args.overrides)
         for stage in STAGES:
             run_stage(stage, p, work)
-        runs[f"seed_{seed}"] = {**score(work / "models" / "transfer_stage2" / "model.pt", root, p["base"]),
+        runs[f"seed_{seed}"] = {**score(work / "models" / "transfer_stage2", root, p["base"]),
                                 "seed_offset": seed}
         print(f"seed {seed}:", json.dumps(runs[f"seed_{seed}"]["by_family"]))
     seeds = {k: v for k, v in runs.items() if k != "pipeline" or not args.overrides}
