@@ -28,9 +28,9 @@
 # Here stage 2 starts from the stage-1 weights (`transfer_stage2.init_from`), on the same transfer
 # set (N frames per type, UR included), with the freeze list `transfer_stage2.trainable`; by
 # default `trunk.late` and `mask_decoder` join the heads, and only `trunk.early` (generic low-level
-# features) stays frozen. The learning rate restarts lower (5e-4 by default) and falls towards
-# 1e-6 over at most `max_steps` (2,000 by default); the same plateau rule ends the stage, in the
-# default run well before that (results/experiments/README.md, "A longer stage 2"). With `transfer_stage2.distill` (on by default, see
+# features) stays frozen. The learning rate restarts at 1e-3 and falls towards 1e-6 over at most
+# `max_steps` (4,000 by default), the paper's schedule (results/experiments/README.md, "Stage 2");
+# the same plateau rule can end the stage earlier (in the last default run it ran to the cap). With `transfer_stage2.distill` (on by default, see
 # notebook 04) the pretrained network keeps teaching the UR types' probabilities; the trunk now
 # trains, so the teacher runs on every training image, about 30 % more time per step.
 
@@ -135,5 +135,6 @@ print(viz.format_table(summary, percent=("val_type_acc", "val_mask_acc")))
 # test scores move between such draws, `python benchmarks/transfer_seeds.py` trains stages 1
 # and 2 again from the same pretrained network with other seed offsets and scores each
 # (`results/transfer_seeds.json`; README, "Seeds of the transfer stages"). Over three seeds of the
-# default profile, KUKA's and Panda's joint medians moved by up to 3 cm and UR's type accuracy by
-# about 1.4 points: read a difference between two settings against that before believing it.
+# default profile, Panda's joint median moved by 2.6 cm, KUKA's by 1.0 cm and UR's type accuracy
+# by 0.9 points (by up to 3.1 cm and 1.4 points in the profile before): read a difference between
+# two settings against that before believing it.
