@@ -29,8 +29,8 @@
 # set (N frames per type, UR included), with the freeze list `transfer_stage2.trainable`; by
 # default `trunk.late` and `mask_decoder` join the heads, and only `trunk.early` (generic low-level
 # features) stays frozen. The learning rate restarts at 1e-3 and falls towards 1e-6 over at most
-# `max_steps` (4,000 by default), the paper's schedule (results/experiments/README.md, "Stage 2");
-# the same plateau rule can end the stage earlier (in the last default run it ran to the cap). With `transfer_stage2.distill` (on by default, see
+# `max_steps` (6,000 by default), the paper's schedule (results/experiments/README.md, "Stage 2");
+# the same plateau rule can end the stage earlier (in the last default run at step 5,765). With `transfer_stage2.distill` (on by default, see
 # notebook 04) the pretrained network keeps teaching the UR types' probabilities; the trunk now
 # trains, so the teacher runs on every training image, about 30 % more time per step.
 
