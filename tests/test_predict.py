@@ -10,7 +10,8 @@ from torch import nn
 from armpose.config import profile_params
 from armpose.geometry import Camera
 from armpose.model import build_model
-from armpose.predict import network_camera, predict
+from armpose.labels.compute import scale_crop_image
+from armpose.predict import PredictError, network_camera, predict, read_image, to_network, warp_for
 from armpose.predict_cli import main as predict_main
 from armpose.train import save_checkpoint
 
@@ -217,3 +218,85 @@ def test_fit_gives_the_posed_model_its_joint_angles_and_camera_pose(setup):
     assert len(fitted["joint_angles"]) == 6 and np.asarray(fitted["camera_T_base"]).shape == (4, 4)
     with pytest.raises(SystemExit):                                         # not with --sequence
         predict_main(["--checkpoint", str(ckpt), "--fit", "--sequence", str(tmp / "fit.png")])
+
+
+@pytest.mark.parametrize("factor", [1, 4])
+def test_the_network_sees_a_frame_exactly_as_the_label_stage_makes_training_inputs(setup, factor):
+    """Downscaling area-averages, as ``scale_crop_image`` does (no aliasing): the canonical camera
+    and a camera ``factor`` times as fine with the same field of view give the training input."""
+    tmp, base, ckpt = setup
+    canon, net = Camera.from_dict(base["camera"]), network_camera(base)
+    cam = Camera(canon.width * factor, canon.height * factor, canon.fx * factor, canon.fy * factor,
+                 (canon.cx + 0.5) * factor - 0.5, (canon.cy + 0.5) * factor - 0.5)
+    assert cam.scale_crop(net.width, net.height)[0] == net
+    noise = np.random.default_rng(factor).integers(0, 256, (cam.height, cam.width, 3), dtype=np.uint8)
+    seen = to_network(noise, warp_for(cam, net), net)
+    np.testing.assert_array_equal(seen, scale_crop_image(noise, cam, net.width, net.height))
+
+
+def test_inputs_of_the_same_name_get_their_own_masks_and_overlays(setup, capsys):
+    tmp, base, ckpt = setup
+    cam = Camera.from_dict(base["camera"])
+    rng = np.random.default_rng(3)
+    for sub in ("a", "b"):
+        (tmp / "same" / sub).mkdir(parents=True)
+        _write_png(tmp / "same" / sub / "img.png", rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8))
+    masks, overlays = tmp / "same_masks", tmp / "same_overlays"
+    rc = predict_main(["--checkpoint", str(ckpt), "--out", str(tmp / "same.jsonl"), "--masks", str(masks),
+                       "--overlays", str(overlays), str(tmp / "same" / "a"), str(tmp / "same" / "b")])
+    assert rc == 0, capsys.readouterr().err
+    rows = [json.loads(line) for line in (tmp / "same.jsonl").read_text().splitlines()]
+    assert [r["mask"].rsplit("/", 1)[1] for r in rows] == ["img_mask.png", "img_2_mask.png"]
+    assert sorted(p.name for p in overlays.iterdir()) == ["img_2_overlay.png", "img_overlay.png"]
+
+
+def test_a_folder_without_images_and_an_unreadable_file_are_errors_that_name_them(setup, capsys, monkeypatch):
+    tmp, base, ckpt = setup
+    empty = tmp / "empty"
+    empty.mkdir()
+    (empty / "notes.txt").write_text("no images here")
+    cam = Camera.from_dict(base["camera"])
+    locked = tmp / "locked.png"
+    _write_png(locked, np.zeros((cam.height, cam.width, 3), np.uint8))
+    real_fromfile = np.fromfile
+
+    def fromfile(path, *args, **kwargs):
+        if str(path) == str(locked):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_fromfile(path, *args, **kwargs)
+
+    monkeypatch.setattr(np, "fromfile", fromfile)
+    rc = predict_main(["--checkpoint", str(ckpt), "--out", str(tmp / "none.jsonl"), str(empty), str(locked)])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert f"{empty}: no images in this folder" in err
+    assert f"{locked}: cannot read (Permission denied)" in err
+    assert (tmp / "none.jsonl").read_text() == ""
+
+
+@pytest.mark.parametrize("kind", ["gray", "rgba", "16bit", "jpeg"])
+def test_grey_alpha_16_bit_and_jpeg_images_are_read_as_rgb_uint8(tmp_path, kind):
+    rgb = np.zeros((6, 8, 3), np.uint8)
+    rgb[..., 0] = 200                                                   # red
+    path = tmp_path / ("img.jpg" if kind == "jpeg" else "img.png")
+    data = {"gray": rgb[..., 0], "rgba": np.dstack([rgb[..., ::-1], np.full((6, 8), 7, np.uint8)]),
+            "16bit": rgb[..., ::-1].astype(np.uint16) * 257, "jpeg": rgb[..., ::-1]}[kind]
+    assert cv2.imwrite(str(path), data)
+    img = read_image(path)
+    assert img.shape == (6, 8, 3) and img.dtype == np.uint8
+    want = [200, 200, 200] if kind == "gray" else [200, 0, 0]
+    assert np.abs(img.reshape(-1, 3).astype(int) - want).max() <= 3
+
+
+def test_a_not_finite_network_output_is_an_error_not_invalid_json(setup, capsys):
+    tmp, base, ckpt = setup
+    cam = Camera.from_dict(base["camera"])
+    net = network_camera(base)
+    path = tmp / "nan.png"
+    _write_png(path, blob_image(cam, POINTS[0]))
+    oracle = BlobOracle(net, float("nan"), 0)
+    errors: list = []
+    assert predict([path], ckpt, model=oracle, errors=errors) == []
+    assert len(errors) == 1 and str(path) in errors[0] and "not finite" in errors[0]
+    with pytest.raises(PredictError):
+        read_image(tmp / "missing.png")

@@ -47,6 +47,10 @@ class PredictError(ValueError):
     """A file that cannot be processed; the message names it."""
 
 
+class SizeMismatch(PredictError):
+    """An image whose size is not that of the camera it is said to come from."""
+
+
 @dataclass(frozen=True)
 class Warp:
     """Network-input pixel ``n`` <-> source pixel ``s``: ``s = scale * n + offset`` per axis."""
@@ -76,10 +80,23 @@ def warp_for(source: Camera, net: Camera) -> Warp:
 
 
 def to_network(image: np.ndarray, warp: Warp, net: Camera) -> np.ndarray:
-    """``image`` (H, W, 3) RGB uint8 resampled into the network camera; outside the source is black."""
-    return cv2.warpAffine(image, warp.matrix(), (net.width, net.height),
-                          flags=cv2.INTER_AREA | cv2.WARP_INVERSE_MAP if warp.scale.min() > 1 else
-                          cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    """``image`` (H, W, 3) RGB uint8 resampled into the network camera; outside the source is black.
+
+    Downscaling is by area averaging first (``cv2.resize``, ``INTER_AREA``), as the label stage
+    makes the training inputs (:func:`armpose.labels.compute.scale_crop_image`; ``warpAffine``
+    has no area mode and would alias); what is left of the map, a shift and a scale near 1,
+    is bilinear. An image of the canonical camera comes out exactly as the label stage's."""
+    scale, offset = warp.scale.astype(np.float64), warp.offset.astype(np.float64)
+    src = image
+    if scale.max() > 1:
+        h, w = image.shape[:2]
+        size = (max(1, round(w / max(scale[0], 1.0))), max(1, round(h / max(scale[1], 1.0))))
+        src = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        ratio = np.array([size[0] / w, size[1] / h])
+        scale, offset = scale * ratio, (offset + 0.5) * ratio - 0.5   # source pixel centres in the resized image
+    matrix = np.array([[scale[0], 0, offset[0]], [0, scale[1], offset[1]]])
+    return cv2.warpAffine(src, matrix, (net.width, net.height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
 def mask_to_source(mask: np.ndarray, warp: Warp, source: Camera) -> np.ndarray:
@@ -95,7 +112,10 @@ def read_image(path: Path) -> np.ndarray:
     """RGB uint8 (H, W, 3); :class:`PredictError` naming the file if it is not a readable image."""
     if not path.is_file():
         raise PredictError(f"{path}: no such file")
-    data = np.fromfile(str(path), np.uint8)
+    try:
+        data = np.fromfile(str(path), np.uint8)
+    except OSError as err:
+        raise PredictError(f"{path}: cannot read ({err.strerror or err})") from err
     img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if img is None:
         raise PredictError(f"{path}: not a readable image (PNG or JPEG expected, {data.size} bytes)")
@@ -109,20 +129,22 @@ class Predictor:
                  zoom: bool = False, fit: bool = False):
         from armpose.inference import load_inference_model
         ckpt_path = Path(checkpoint)
-        if model is None:
-            try:
+        try:
+            if model is None:
                 model, config = load_inference_model(ckpt_path, device)
-            except (ValueError, KeyError, RuntimeError) as err:
-                raise PredictError(f"{ckpt_path}: cannot use this checkpoint ({err})") from err
-        else:
-            config = load_checkpoint(ckpt_path)["config"]
+            else:
+                config = load_checkpoint(ckpt_path)["config"]
+            self.zoom_settings = settings_from_config(config)
+            self.fit_sigmas = checkpoint_fit_sigmas(ckpt_path) if fit else {}
+            self.base = config["base"]
+            self.types = list(self.base["robot_types"])
+            self.net = network_camera(self.base)
+            self.canonical = Camera.from_dict(self.base["camera"])
+        except (ValueError, KeyError, TypeError, RuntimeError) as err:
+            msg = f"missing key {err.args[0]!r}" if isinstance(err, KeyError) and err.args else str(err)
+            raise PredictError(msg if msg.startswith(str(ckpt_path))
+                               else f"{ckpt_path}: cannot use this checkpoint ({msg})") from err
         self.model, self.device, self.mirror, self.zoom, self.fit = model, device, mirror, zoom, fit
-        self.zoom_settings = settings_from_config(config)
-        self.fit_sigmas = checkpoint_fit_sigmas(ckpt_path) if fit else {}
-        self.base = config["base"]
-        self.types = list(self.base["robot_types"])
-        self.net = network_camera(self.base)
-        self.canonical = Camera.from_dict(self.base["camera"])
         self.num_joints = [get_robot(t).num_joints for t in self.types]
 
     def forward(self, x: torch.Tensor) -> dict:
@@ -135,7 +157,7 @@ class Predictor:
         camera = camera or self.canonical
         h, w = image.shape[:2]
         if (w, h) != (camera.width, camera.height):
-            raise PredictError(f"image is {w}x{h} but the camera is {camera.width}x{camera.height}"
+            raise SizeMismatch(f"image is {w}x{h} but the camera is {camera.width}x{camera.height}"
                                + ("" if camera is not self.canonical else "; pass --intrinsics for another camera"))
         warp = warp_for(camera, self.net)
         x = torch.from_numpy(to_network(image, warp, self.net)).permute(2, 0, 1).float().div(255)[None]
@@ -150,6 +172,8 @@ class Predictor:
         k = int(probs.argmax())
         joints = out["joints"][0, : self.num_joints[k]].double().cpu().numpy()
         base = out["base"][0].double().cpu().numpy()
+        if not (np.isfinite(probs).all() and np.isfinite(joints).all() and np.isfinite(base).all()):
+            raise PredictError("the network's output is not finite (NaN or inf); is the checkpoint damaged?")
         extra = {}
         if self.fit:
             fitted = fit_predictions(joints[None], base[None], np.array([0]), [self.types[k]], sigmas=self.fit_sigmas)
@@ -163,16 +187,36 @@ class Predictor:
                 "latency_ms": round(latency, 3), **extra, "_mask": mask}
 
 
-def expand_inputs(inputs: Sequence[str | Path]) -> list[Path]:
-    """Files as given; folders expand to their image files, sorted."""
+def expand_inputs(inputs: Sequence[str | Path], errors: list | None = None) -> list[Path]:
+    """Files as given; folders expand to their image files (``IMAGE_SUFFIXES``), sorted.
+
+    A folder without any is reported into ``errors`` (when given) with a message naming it."""
     out = []
     for item in inputs:
         p = Path(item)
         if p.is_dir():
-            out += sorted(f for f in p.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
+            found = sorted(f for f in p.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
+            if not found and errors is not None:
+                errors.append(f"{p}: no images in this folder ({', '.join(IMAGE_SUFFIXES)})")
+            out += found
         else:
             out.append(p)
     return out
+
+
+def output_stems(paths: Sequence[Path]) -> list[str]:
+    """One distinct file-name stem per input, for its mask and overlay: the input's own stem, with
+    ``_2``, ``_3``, ... added when an earlier input took it (``a/img.png`` and ``b/img.png``)."""
+    used: set[str] = set()
+    stems = []
+    for path in paths:
+        stem, n = Path(path).stem, 2
+        name = stem
+        while name in used:
+            name, n = f"{stem}_{n}", n + 1
+        used.add(name)
+        stems.append(name)
+    return stems
 
 
 def write_mask(mask: np.ndarray, folder: Path, stem: str) -> Path:
@@ -183,28 +227,55 @@ def write_mask(mask: np.ndarray, folder: Path, stem: str) -> Path:
     return path
 
 
+def write_overlay(image: np.ndarray, mask: np.ndarray | None, joints_uv, folder: Path, stem: str) -> Path:
+    """``image`` (RGB uint8) with ``mask`` (bool, or None) and the joints drawn, as
+    ``<folder>/<stem>_overlay.png``, atomically."""
+    from armpose.viz import overlay_labels
+    drawn = overlay_labels(image, None if mask is None else mask.astype(np.uint8) * 255, np.asarray(joints_uv))
+    path = Path(folder) / f"{stem}_overlay.png"
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(drawn, cv2.COLOR_RGB2BGR))
+    atomic_write_bytes(path, buf.tobytes())
+    return path
+
+
 def predict(images: Sequence[str | Path], checkpoint: Path | str, intrinsics: Camera | str | Path | None = None,
             masks: Path | None = None, device: str = "cpu", errors: list | None = None, model=None,
-            mirror: bool = False, zoom: bool = False, fit: bool = False) -> list[dict]:
+            mirror: bool = False, zoom: bool = False, fit: bool = False, overlays: Path | None = None) -> list[dict]:
     """One result dict per readable image (schema in the module docstring).
 
     ``intrinsics``: a :class:`Camera` or a JSON path; ``None`` means the canonical camera of the
     checkpoint's params. Files that fail are skipped with a warning; pass a list as ``errors``
-    to collect their messages. ``model`` replaces the checkpoint's network (tests use an oracle).
+    to collect their messages (a folder without images is one). ``model`` replaces the
+    checkpoint's network (tests use an oracle).
     ``mirror``: average with the network's outputs on the mirrored image (:mod:`armpose.mirror_test`;
     two images a forward pass, included in ``latency_ms``). ``zoom``: a second look from the camera
     turned to the robot and moved closer (:mod:`armpose.zoom_test`, settings from the checkpoint;
     one more forward pass, included in ``latency_ms``). ``fit``: the kinematic fit of the predicted
     type's model (:mod:`armpose.kinematic_fit`), with ``joint_angles`` and ``camera_T_base``.
+    ``masks`` and ``overlays``: folders for ``<stem>_mask.png`` and ``<stem>_overlay.png`` (the
+    image with its mask and joints drawn), stems from :func:`output_stems`.
     """
     predictor = Predictor(checkpoint, device, model=model, mirror=mirror, zoom=zoom, fit=fit)
     camera = load_intrinsics(Path(intrinsics)) if isinstance(intrinsics, (str, Path)) else intrinsics
+    where = f" (intrinsics {intrinsics})" if isinstance(intrinsics, (str, Path)) else ""
+    problems: list[str] = []
+    paths = expand_inputs(images, problems)
+    for msg in problems:
+        log.warning("%s", msg)
+    if errors is not None:
+        errors += problems
     results = []
-    for path in expand_inputs(images):
+    for path, stem in zip(paths, output_stems(paths)):
         try:
-            res = predictor(read_image(path), camera)
+            image = read_image(path)
+            res = predictor(image, camera)
+        except SizeMismatch as err:
+            res = None
+            msg = f"{path}: {err}{where}"
         except PredictError as err:
+            res = None
             msg = str(err) if str(err).startswith(str(path)) else f"{path}: {err}"
+        if res is None:
             log.warning("%s", msg)
             if errors is not None:
                 errors.append(msg)
@@ -212,6 +283,8 @@ def predict(images: Sequence[str | Path], checkpoint: Path | str, intrinsics: Ca
         mask = res.pop("_mask")
         row = {"image": str(path), **res}
         if masks is not None:
-            row["mask"] = str(write_mask(mask, masks, path.stem))
+            row["mask"] = str(write_mask(mask, masks, stem))
+        if overlays is not None:
+            write_overlay(image, mask, row["joints_uv"], overlays, stem)
         results.append(row)
     return results

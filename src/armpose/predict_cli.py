@@ -43,22 +43,13 @@ import numpy as np
 from armpose.extrinsics import match_rows, read_joint_csv
 from armpose.intrinsics import IntrinsicsError
 from armpose.io import atomic_write_bytes, atomic_write_text
-from armpose.predict import PredictError, predict, read_image
+from armpose.predict import PredictError, predict
 from armpose.recording import RecordingError
 from armpose.robots.registry import UnknownRobotError, get_robot
 from armpose.sequence import FILTERS, frame_stem, iter_sequence, list_frames
 from armpose.viz import overlay_labels
 
 SEQUENCE_ONLY = ("filter", "rate_hz", "joints", "robot")
-
-
-def write_overlay(row: dict, folder: Path) -> None:
-    """The input image with its mask (if written) and predicted joints drawn on it."""
-    image = read_image(Path(row["image"]))
-    mask = cv2.imread(row["mask"], cv2.IMREAD_GRAYSCALE) if "mask" in row else None
-    drawn = overlay_labels(image, mask, np.asarray(row["joints_uv"]))
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(drawn, cv2.COLOR_RGB2BGR))
-    atomic_write_bytes(Path(folder) / f"{Path(row['image']).stem}_overlay.png", buf.tobytes())
 
 
 def write_sequence_overlay(row: dict, image: np.ndarray, mask: np.ndarray | None, folder: Path) -> None:
@@ -106,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--intrinsics", default=None, help="JSON with width, height, fx, fy, cx, cy of your camera")
     ap.add_argument("--out", default=None, help="JSONL output file (default: stdout)")
     ap.add_argument("--masks", default=None, help="folder for mask PNGs (255 = robot), input size")
-    ap.add_argument("--overlays", default=None, help="folder for images with the predictions drawn")
+    ap.add_argument("--overlays", default=None, help="folder for images with the predicted mask and joints drawn")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--mirror", action="store_true", help="average with the mirrored image's estimate (2 images a forward)")
     ap.add_argument("--zoom", action="store_true", help="a second look from a camera turned to the robot and moved closer")
@@ -138,7 +129,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1 if errors else 0
     try:
         rows = predict(args.inputs, args.checkpoint, args.intrinsics, Path(args.masks) if args.masks else None,
-                       args.device, errors=errors, mirror=args.mirror, zoom=args.zoom, fit=args.fit)
+                       args.device, errors=errors, mirror=args.mirror, zoom=args.zoom, fit=args.fit,
+                       overlays=Path(args.overlays) if args.overlays else None)
     except (PredictError, IntrinsicsError) as err:
         print(f"armpose predict: {err}", file=sys.stderr)
         return 1
@@ -149,9 +141,6 @@ def main(argv: list[str] | None = None) -> int:
         atomic_write_text(Path(args.out), text)
     else:
         sys.stdout.write(text)
-    if args.overlays:
-        for row in rows:
-            write_overlay(row, Path(args.overlays))
     return 1 if errors else 0
 
 
