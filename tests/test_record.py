@@ -198,6 +198,15 @@ def test_a_bad_real_recording_is_rejected_naming_the_file(session, tmp_path, dam
     assert not find_recordings(tmp_path / "root" / "data" / "record")
 
 
+def test_two_recordings_that_would_share_a_folder_are_refused(session, tmp_path):
+    real = tmp_path / "real"
+    _real_copy(session, real)                                       # real/lab1/run1 -> lab1__run1
+    shutil.copytree(real / "lab1" / "run1", real / "lab1__run1")    # real/lab1__run1 -> lab1__run1 too
+    with pytest.raises(RecordingError, match="same folder as"):
+        record.run(_params(recordings_dir=str(real)), tmp_path / "root")
+    assert not find_recordings(tmp_path / "root" / "data" / "record")
+
+
 def _replace_line(path, line: int, edit) -> None:
     lines = path.read_text().splitlines()
     lines[line - 1] = ",".join(edit(lines[line - 1].split(",")))

@@ -191,6 +191,65 @@ def test_non_unit_quaternion(rec):
     assert "1.5" in msg and "not unit" in msg
 
 
+@pytest.mark.parametrize("key, value, problem", [
+    ("fx", -50.0, "fx must be a positive number"), ("fy", float("nan"), "fy must be a positive number"),
+    ("width", 64.9, "width must be a whole number"), ("height", 0, "height must be a positive number"),
+    ("cx", "239.5", "cx must be a positive number")])
+def test_a_camera_that_is_not_a_pinhole_camera_is_refused_naming_the_key(rec, key, value, problem):
+    meta_path = rec / "recording.json"
+    raw = json.loads(meta_path.read_text())
+    raw["camera"][key] = value
+    meta_path.write_text(json.dumps(raw))
+    with pytest.raises(RecordingError) as info:
+        label(rec)
+    msg = assert_names(info.value, meta_path, None, repr(value))
+    assert problem in msg
+
+
+def test_a_robot_that_is_not_a_name_is_refused(rec):
+    meta_path = rec / "recording.json"
+    raw = json.loads(meta_path.read_text())
+    raw["robot"] = ["iiwa"]
+    meta_path.write_text(json.dumps(raw))
+    with pytest.raises(RecordingError) as info:
+        label(rec)
+    assert "robot must be a robot type name" in assert_names(info.value, meta_path, None, "['iiwa']")
+
+
+def test_a_frame_listed_twice_names_both_lines(rec):
+    joints_csv = rec / "joints.csv"
+    lines = joints_csv.read_text().splitlines()
+    joints_csv.write_text("\n".join(lines + [lines[2]]) + "\n")     # frame 1 again, on line 5
+    with pytest.raises(RecordingError) as info:
+        label(rec)
+    assert "frame listed twice (first on line 3)" in assert_names(info.value, joints_csv, 5, "1")
+    arrays, _, skipped = label(rec, skip_bad=True)                    # the first reading is kept
+    assert arrays["frame"].tolist() == list(range(NUM_FRAMES)) and len(skipped) == 1
+
+
+def test_a_frame_index_that_is_not_an_integer_is_a_row_error(rec):
+    joints_csv = rec / "joints.csv"
+    set_cell(joints_csv, 3, "frame", "1.5")
+    with pytest.raises(RecordingError) as info:
+        label(rec)
+    assert "frame index is not an integer" in assert_names(info.value, joints_csv, 3, "'1.5'")
+    arrays, _, skipped = label(rec, skip_bad=True)
+    assert 1 not in arrays["frame"].tolist() and skipped
+
+
+def test_a_recording_without_rows_and_a_csv_that_is_not_text_are_errors(rec):
+    joints_csv = rec / "joints.csv"
+    for table in (joints_csv, rec / "camera_poses.csv"):
+        table.write_text(table.read_text().splitlines()[0] + "\n")     # the header alone
+    header = joints_csv.read_text().splitlines()[0]
+    with pytest.raises(RecordingError, match="no rows"):
+        label(rec)
+    joints_csv.write_bytes(b"\xff\xfe" + header.encode("utf-16-le"))
+    with pytest.raises(RecordingError) as info:
+        label(rec)
+    assert str(joints_csv) in str(info.value) and "not a UTF-8 text CSV file" in str(info.value)
+
+
 def test_quaternion_within_tolerance_is_accepted(rec):
     poses_csv = rec / "camera_poses.csv"
     _, poses, _ = read_poses(rec)

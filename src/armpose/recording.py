@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from armpose.geometry import Camera
+from armpose.intrinsics import camera_problem
 from armpose.io import InputFileError, atomic_write_json, atomic_write_text, read_json_input
 from armpose.robots.registry import RobotSpec, UnknownRobotError, get_robot
 
@@ -60,16 +61,19 @@ def read_meta(rec_dir: Path) -> tuple[RecordingMeta, RobotSpec]:
     for key in ("robot", "camera", "source"):
         if key not in raw:
             raise RecordingError(path, None, sorted(raw), f"missing key {key!r}")
+    if not isinstance(raw["robot"], str):
+        raise RecordingError(path, None, raw["robot"], "robot must be a robot type name (a string)")
     try:
         spec = get_robot(raw["robot"])
     except UnknownRobotError as err:
         raise RecordingError(path, None, raw["robot"], f"unknown robot type; {err.args[0]}") from err
     if raw["source"] not in SOURCES:
         raise RecordingError(path, None, raw["source"], f"source must be one of {SOURCES}")
-    try:
-        camera = Camera.from_dict(raw["camera"])
-    except (KeyError, TypeError, ValueError) as err:
-        raise RecordingError(path, None, raw["camera"], "camera needs width, height, fx, fy, cx, cy") from err
+    problem = (raw["camera"], "camera must be an object") if not isinstance(raw["camera"], dict) \
+        else camera_problem(raw["camera"])
+    if problem:
+        raise RecordingError(path, None, *problem)
+    camera = Camera.from_dict(raw["camera"])
     return RecordingMeta(raw["robot"], camera, raw["source"], raw.get("notes", "")), spec
 
 
@@ -78,13 +82,21 @@ def _read_table(path: Path, columns: list[str], check=None) -> tuple[np.ndarray,
 
     A header that differs from ``columns`` is a file-level error and raises. Rows with a
     missing, non-numeric or non-finite value, or for which ``check(values)`` returns a
-    ``(value, problem)`` pair, are returned as errors (values NaN in the table). Blank lines
-    are ignored; errors name the line in the file.
+    ``(value, problem)`` pair, are returned as errors (values NaN in the table); so are rows whose
+    frame index is not an integer or repeats an earlier row's (those rows are left out). Blank
+    lines are ignored; errors name the line in the file.
     """
     if not path.exists():
         raise RecordingError(path, None, None, "missing file")
-    with open(path, newline="") as fh:
-        rows = list(csv.reader(fh))
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except UnicodeDecodeError as err:
+        raise RecordingError(path, None, f"byte {err.start}", "not a UTF-8 text CSV file") from None
+    except csv.Error as err:
+        raise RecordingError(path, None, None, f"not a readable CSV file ({err})") from None
+    except OSError as err:
+        raise RecordingError(path, None, None, f"cannot read ({err.strerror or err})") from None
     if not rows:
         raise RecordingError(path, 1, None, "empty file, expected a header")
     header = [h.strip() for h in rows[0]]
@@ -94,14 +106,20 @@ def _read_table(path: Path, columns: list[str], check=None) -> tuple[np.ndarray,
         raise RecordingError(path, 1, header, f"header must be frame,{','.join(columns)}"
                              + (f"; missing {missing}" if missing else "") + (f"; unexpected {extra}" if extra else ""))
     frames, values, errors = [], [], []
+    first_line: dict[int, int] = {}
     for line, row in enumerate(rows[1:], start=2):
         if not row:
             continue
         try:
             frame = int(row[0])
         except ValueError:
-            raise RecordingError(path, line, row[0], "frame index is not an integer") from None
+            errors.append(RecordingError(path, line, row[0], "frame index is not an integer"))
+            continue
         vals = np.full(len(columns), np.nan)
+        if frame in first_line:
+            errors.append(RecordingError(path, line, frame, f"frame listed twice (first on line {first_line[frame]})"))
+            continue
+        first_line[frame] = line
         if len(row) != len(columns) + 1:
             errors.append(RecordingError(path, line, row, f"expected {len(columns) + 1} columns, got {len(row)}"))
         else:

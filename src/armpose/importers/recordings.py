@@ -53,11 +53,6 @@ def validate_recording(rec_dir: Path, robot_types) -> dict:
     for path, frames in ((rec_dir / "joints.csv", jf), (rec_dir / "camera_poses.csv", pf)):
         if not len(frames):
             raise RecordingError(path, None, 0, "no rows: a recording needs at least one frame")
-        seen = set()
-        for f in frames:
-            if f in seen:
-                raise RecordingError(path, None, int(f), "frame listed twice")
-            seen.add(f)
     for f in sorted(set(jf) - set(pf)):
         raise RecordingError(rec_dir / "camera_poses.csv", None, int(f), "no camera pose for frame")
     for f in sorted(set(pf) - set(jf)):
@@ -129,12 +124,17 @@ def link_recordings(src_root: Path, out: Path, robot_types) -> tuple[list[Path],
         raise FileNotFoundError(f"{src_root}: no recordings there (folders holding recording.json)")
     infos = [validate_recording(r, robot_types) for r in recs]
     log.info("%d recordings under %s are valid (%d frames)", len(recs), src_root, sum(i["frames"] for i in infos))
-    dsts, linked = [], 0
-    for rec, info in zip(recs, infos):
-        name = "__".join(rec.relative_to(src_root).parts) or rec.name
-        dst = Path(out) / info["robot"] / name
+    dsts = [Path(out) / info["robot"] / ("__".join(rec.relative_to(src_root).parts) or rec.name)
+            for rec, info in zip(recs, infos)]
+    first: dict[Path, Path] = {}
+    for rec, dst in zip(recs, dsts):
+        if dst in first:
+            raise RecordingError(rec / "recording.json", None, str(dst),
+                                 f"would be linked to the same folder as {first[dst]}; rename one of the two")
+        first[dst] = rec
+    linked = 0
+    for rec, dst in zip(recs, dsts):
         if not is_linked(rec, dst):
             log.info("linking %s -> %s (%s)", rec, dst, link_recording(rec, dst))
             linked += 1
-        dsts.append(dst)
     return dsts, linked

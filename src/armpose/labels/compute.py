@@ -62,6 +62,8 @@ def label_recording(rec_dir: Path, input_size: dict, max_joints: int, skip_bad: 
     frames, q, poses = _aligned_rows(rec_dir, spec, errors)
     if errors and not skip_bad:
         raise errors[0]
+    if not len(frames) and not errors:
+        raise RecordingError(rec_dir / "joints.csv", None, 0, "no rows: a recording needs at least one frame")
     w, h = int(input_size["width"]), int(input_size["height"])
     cam_in, _, _ = meta.camera.scale_crop(w, h)
     T_base_cam = pose_to_matrix(poses[:, :3], poses[:, 3:])
