@@ -41,6 +41,17 @@ def test_summary_values_match_hand_computation():
     assert len(m["per_joint_median_cm"]) == 7
 
 
+def test_pck_divides_network_pixels_by_the_pixel_scale_per_frame():
+    """Network-input errors 0.5, 1, 1.5, 10 px; a frame's scale of 0.25 network pixels per PCK
+    pixel makes its error 4x larger in PCK pixels (a recording from a finer camera)."""
+    pred, truth = _case()
+    assert summarise(pred, truth, np.arange(4), 0.25)["pck_5px"] == pytest.approx(12 / 26)  # 2, 4, 6, 40 px
+    per_frame = np.array([1.0, 1.0, 0.25, 1.0])                                          # 0.5, 1, 6, 10 px
+    m = summarise(pred, truth, np.arange(4), per_frame)
+    assert m["pck_5px"] == pytest.approx(12 / 26) and m["pck_10px"] == pytest.approx(19 / 26)
+    assert summarise(pred, truth, np.array([2, 3]), per_frame)["pck_10px"] == pytest.approx(7 / 14)
+
+
 def test_depth_breakdown_separates_ray_errors_from_depth_errors():
     truth = np.zeros((2, 3, 3))
     truth[..., 0] = [0.1, 0.2, 0.3]

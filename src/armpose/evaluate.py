@@ -139,10 +139,17 @@ def metrics_by_group(pred: dict, truth: dict, robot_types: list[str], pixel_scal
     return result
 
 
-def pixel_scale_of(base: dict) -> float:
-    """Network-input pixels per pixel of the rectified camera image (scale-and-crop factor)."""
+def pixel_scale_of(base: dict, truth: dict | None = None) -> float | np.ndarray:
+    """Network-input pixels per pixel of the canonical camera (``base.camera``), the unit of PCK.
+
+    Without ``truth``: the canonical camera's scale-and-crop factor. With it: one per frame,
+    each frame's network-input ``fx`` (``truth["intrinsics"]``) over the canonical ``fx``, so that
+    a recording from another camera is scored at the same angle per pixel (for canonical frames
+    this is the factor the label stage's ``cv2.resize`` applied)."""
     cam, size = base["camera"], base["input_size"]
-    return max(size["width"] / cam["width"], size["height"] / cam["height"])
+    if truth is None:
+        return max(size["width"] / cam["width"], size["height"] / cam["height"])
+    return np.asarray(truth["intrinsics"], np.float64)[:, 0] / float(cam["fx"])
 
 
 def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str = "test",
@@ -159,10 +166,10 @@ def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str
     pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror, zoom=zoom,
                                 zoom_settings=settings_from_config(config), fit=fit,
                                 fit_sigmas=checkpoint_fit_sigmas(checkpoint) if fit is not None else None)
-    metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base))
+    metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base, truth))
     for key, name in (("mirror", "mirror_test"), ("zoom", "zoom_test"), ("fit", "kinematic_fit")):
         if key in pred:
-            both = metrics_by_group(pred[key], truth, list(base["robot_types"]), pixel_scale_of(base))
+            both = metrics_by_group(pred[key], truth, list(base["robot_types"]), pixel_scale_of(base, truth))
             metrics[name] = {k: both[k] for k in ("all", "by_family", "by_type", "by_source", "confusion")}
     log.info("%s on %s: %s", checkpoint, split, {k: metrics["by_family"][k].get("joint_median_cm")
                                                  for k in metrics["by_family"]})

@@ -118,11 +118,18 @@ def depth_breakdown(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> d
             "joint_median_true_frame_scale_cm": _median_cm(np.linalg.norm(on_true_scale - safe_truth, axis=-1)[valid])}
 
 
-def summarise(pred: dict, truth: dict, rows: np.ndarray, pixel_scale: float = 1.0) -> dict:
+def summarise(pred: dict, truth: dict, rows: np.ndarray, pixel_scale: float | np.ndarray = 1.0) -> dict:
     """Every metric over the frames ``rows`` (indices into the per-frame arrays).
 
     ``pred`` keys: ``joints``, ``base``, ``type``, ``mask_counts``; ``truth`` keys: ``joints``,
-    ``joint_valid``, ``base``, ``type``, ``intrinsics``. Returns a flat dict of floats."""
+    ``joint_valid``, ``base``, ``type``, ``intrinsics``. ``pixel_scale``: network-input pixels per
+    PCK pixel, one number or one per frame (indexed by ``rows``). Returns a flat dict of floats.
+
+    Mask accuracy and IoU are per frame (network-input pixels), then averaged over the frames; an
+    empty union counts as IoU 1. Joint errors are those of the true type's joint slots
+    (``joint_valid``), also for a frame whose type is predicted wrong; the joint median and mean
+    pool every valid joint of every frame. ADD AUC: :func:`add_auc` of each frame's mean joint
+    error."""
     rows = np.asarray(rows, np.int64)
     if rows.size == 0:
         nan = float("nan")
@@ -133,8 +140,10 @@ def summarise(pred: dict, truth: dict, rows: np.ndarray, pixel_scale: float = 1.
     base_err = np.linalg.norm(pred["base"][rows] - truth["base"][rows], axis=-1)
     counts = pred["mask_counts"][rows].astype(np.float64)
     iou = np.where(counts[:, 2] > 0, counts[:, 1] / np.maximum(counts[:, 2], 1), 1.0)
+    scale = np.asarray(pixel_scale, np.float64)
+    scale = scale[rows][:, None] if scale.ndim else scale
     uv_err = np.linalg.norm(project(pred["joints"][rows], truth["intrinsics"][rows])
-                            - project(truth["joints"][rows], truth["intrinsics"][rows]), axis=-1) / pixel_scale
+                            - project(truth["joints"][rows], truth["intrinsics"][rows]), axis=-1) / scale
     valid = np.asarray(truth["joint_valid"][rows], bool)
     out = {
         "frames": int(rows.size),

@@ -26,6 +26,15 @@ PAPER_LATENCY_MS = (19, 23)
 HIGHER_IS_BETTER = {"mask_accuracy": True, "type_accuracy": True, "joint_median_cm": False, "base_median_cm": False}
 ROW_NAMES = {"mask_accuracy": "Mask accuracy, %", "type_accuracy": "Robot type accuracy, %",
              "joint_median_cm": "Joint position error (median), cm", "base_median_cm": "Base position error (median), cm"}
+MEASURES_NOTE = (
+    "How the measures are computed (`armpose.metrics.summarise`): mask accuracy and IoU per frame, in "
+    "network-input pixels (256x212), then averaged over the frames; joint errors on the true type's joints "
+    "(6 for UR, 7 for iiwa and Panda), also where the type is predicted wrong, and the joint median and mean "
+    "pooled over every joint of every frame; base errors per frame. `add_auc_10cm`: the area under the "
+    "fraction of frames whose mean joint error is below t, for t from 0 to 10 cm, 1 for a perfect estimate "
+    "(NVlabs/DREAM's ADD AUC); `pck_5px` and `pck_10px`: the fraction of joints whose projection is within "
+    "5 and 10 pixels of the canonical 480x360 camera (each frame's error scaled by its network-input focal "
+    "length over the canonical one).")
 PACKAGES = ("torch", "numpy", "pybullet", "pytorch-kinematics", "opencv-python-headless", "dvc", "matplotlib")
 
 
@@ -91,7 +100,7 @@ def results_table(metrics: Mapping, data_note: str, headline: str = "single") ->
            f"Paper: real camera images (Miseikis et al. 2019, Table II). Ours: {data_note}", "",
            "Two-stage transfer model (`models/transfer_stage2/model.pt`), held-out test split, "
            f"{headline_caption(headline, metrics.get('latency', {}))}. "
-           "Bold: ours at least as good as the paper's.", "", *lines, ""]
+           "Bold: ours at least as good as the paper's.", "", *lines, "", MEASURES_NOTE, ""]
     extra_keys = ("mask_iou", "joint_mean_cm", "add_auc_10cm", "pck_5px", "pck_10px", "frames")
     out += ["## More metrics (two-stage transfer | full training from scratch)", "",
             "| Family | " + " | ".join(extra_keys) + " | full: joint median cm | full: type acc % |",

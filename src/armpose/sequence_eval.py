@@ -119,7 +119,7 @@ RECORDING_KEYS = ("frames", "mask_accuracy", "type_accuracy", "joint_median_cm",
                   "joint_median_true_depth_cm")
 
 
-def metrics_by_recording(pred: dict, truth: dict, index: dict, arrays: dict, pixel_scale: float) -> dict:
+def metrics_by_recording(pred: dict, truth: dict, index: dict, arrays: dict, pixel_scale: float | np.ndarray) -> dict:
     """Per recorded test recording, keyed by its name in ``index["recordings"]``: ``robot``,
     ``camera`` (``static``: tripod, ``moving``: handheld), the :data:`RECORDING_KEYS` of
     :func:`armpose.metrics.summarise` and ``frame_depth_ratio_median``, the median over its frames

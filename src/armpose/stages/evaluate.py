@@ -129,7 +129,7 @@ def recorded_metrics(pred_truth: tuple[dict, dict], data_dir: Path, root: Path, 
     cfg, families = params["evaluate"], family_of(list(params["base"]["robot_types"]))
     out = {"sequence": sequence_metrics(pred, truth, index, arrays, families, float(params["record"]["fps"]),
                                         list(cfg.get("sequence_filters", ["kalman"]))),
-           "by_recording": metrics_by_recording(pred, truth, index, arrays, pixel_scale_of(params["base"]))}
+           "by_recording": metrics_by_recording(pred, truth, index, arrays, pixel_scale_of(params["base"], truth))}
     fit = cfg.get("pose_fit", "rigid")
     if fit not in ("rigid", "rays"):
         raise ValueError(f"evaluate.pose_fit must be 'rigid' or 'rays', got {fit!r}")
