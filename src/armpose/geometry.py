@@ -139,3 +139,22 @@ class Camera:
         cam = Camera(width, height, self.fx * sx, self.fy * sy,
                      (self.cx + 0.5) * sx - 0.5 - x0, (self.cy + 0.5) * sy - 0.5 - y0)
         return cam, (rw, rh), (x0, y0)
+
+
+CAMERA_KEYS = ("width", "height", "fx", "fy", "cx", "cy")
+
+
+def camera_problem(raw: dict) -> tuple[object, str] | None:
+    """``(value, problem)`` for the first bad entry of a camera dict (pixels), or None if it is a
+    valid pinhole camera: ``width`` and ``height`` whole numbers > 0, ``fx`` and ``fy`` finite and
+    > 0, ``cx`` and ``cy`` finite and >= 0. ``recording.json`` is checked with it too."""
+    for k in CAMERA_KEYS:
+        if k not in raw:
+            return sorted(raw), f"camera needs {', '.join(CAMERA_KEYS)}; missing {k!r}"
+        v = raw[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 \
+                or (k in ("width", "height", "fx", "fy") and v <= 0):
+            return v, f"{k} must be a positive number"
+        if k in ("width", "height") and not float(v).is_integer():
+            return v, f"{k} must be a whole number of pixels"
+    return None

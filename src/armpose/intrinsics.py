@@ -12,10 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from armpose.geometry import Camera
+from armpose.geometry import CAMERA_KEYS as KEYS, Camera, camera_problem
 from armpose.io import InputFileError, read_json_input
 
-KEYS = ("width", "height", "fx", "fy", "cx", "cy")
 DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 
 
@@ -45,22 +44,6 @@ def read_intrinsics(path: Path | str) -> tuple[Camera, np.ndarray | None]:
     if problem:
         raise IntrinsicsError(path, None, *problem)
     return Camera.from_dict(raw), _distortion(path, raw.get("distortion"))
-
-
-def camera_problem(raw: dict) -> tuple[object, str] | None:
-    """``(value, problem)`` for the first bad entry of a camera dict (pixels), or None if it is a
-    valid pinhole camera: ``width`` and ``height`` whole numbers > 0, ``fx`` and ``fy`` finite and
-    > 0, ``cx`` and ``cy`` finite and >= 0. ``recording.json`` is checked with it too."""
-    for k in KEYS:
-        if k not in raw:
-            return sorted(raw), f"camera needs {', '.join(KEYS)}; missing {k!r}"
-        v = raw[k]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 \
-                or (k in ("width", "height", "fx", "fy") and v <= 0):
-            return v, f"{k} must be a positive number"
-        if k in ("width", "height") and not float(v).is_integer():
-            return v, f"{k} must be a whole number of pixels"
-    return None
 
 
 def load_intrinsics(path: Path | str) -> Camera:

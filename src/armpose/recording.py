@@ -21,8 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from armpose.geometry import Camera
-from armpose.intrinsics import camera_problem
+from armpose.geometry import Camera, camera_problem
 from armpose.io import InputFileError, atomic_write_json, atomic_write_text, read_json_input
 from armpose.robots.registry import RobotSpec, UnknownRobotError, get_robot
 
