@@ -139,17 +139,12 @@ def metrics_by_group(pred: dict, truth: dict, robot_types: list[str], pixel_scal
     return result
 
 
-def pixel_scale_of(base: dict, truth: dict | None = None) -> float | np.ndarray:
-    """Network-input pixels per pixel of the canonical camera (``base.camera``), the unit of PCK.
-
-    Without ``truth``: the canonical camera's scale-and-crop factor. With it: one per frame,
-    each frame's network-input ``fx`` (``truth["intrinsics"]``) over the canonical ``fx``, so that
-    a recording from another camera is scored at the same angle per pixel (for canonical frames
-    this is the factor the label stage's ``cv2.resize`` applied)."""
-    cam, size = base["camera"], base["input_size"]
-    if truth is None:
-        return max(size["width"] / cam["width"], size["height"] / cam["height"])
-    return np.asarray(truth["intrinsics"], np.float64)[:, 0] / float(cam["fx"])
+def pixel_scale_of(base: dict, truth: dict) -> np.ndarray:
+    """Network-input pixels per pixel of the canonical camera (``base.camera``), the unit of PCK:
+    one per frame, its network-input ``fx`` (``truth["intrinsics"]``) over the canonical ``fx``, so
+    that a recording from another camera is scored at the same angle per pixel (for canonical
+    frames this is the factor the label stage's ``cv2.resize`` applied)."""
+    return np.asarray(truth["intrinsics"], np.float64)[:, 0] / float(base["camera"]["fx"])
 
 
 def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str = "test",

@@ -228,10 +228,10 @@ def write_mask(mask: np.ndarray, folder: Path, stem: str) -> Path:
 
 
 def write_overlay(image: np.ndarray, mask: np.ndarray | None, joints_uv, folder: Path, stem: str) -> Path:
-    """``image`` (RGB uint8) with ``mask`` (bool, or None) and the joints drawn, as
-    ``<folder>/<stem>_overlay.png``, atomically."""
+    """``image`` (RGB uint8) with ``mask`` (non-zero = robot, or None) and the joints (pixels; NaN
+    rows left out) drawn, as ``<folder>/<stem>_overlay.png``, atomically."""
     from armpose.viz import overlay_labels
-    drawn = overlay_labels(image, None if mask is None else mask.astype(np.uint8) * 255, np.asarray(joints_uv))
+    drawn = overlay_labels(image, mask, np.asarray(joints_uv, np.float64).reshape(-1, 2))
     path = Path(folder) / f"{stem}_overlay.png"
     ok, buf = cv2.imencode(".png", cv2.cvtColor(drawn, cv2.COLOR_RGB2BGR))
     atomic_write_bytes(path, buf.tobytes())

@@ -37,17 +37,15 @@ import logging
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from armpose.extrinsics import match_rows, read_joint_csv
 from armpose.intrinsics import IntrinsicsError
-from armpose.io import atomic_write_bytes, atomic_write_text
-from armpose.predict import PredictError, predict
+from armpose.io import atomic_write_text
+from armpose.predict import PredictError, predict, write_overlay
 from armpose.recording import RecordingError
 from armpose.robots.registry import UnknownRobotError, get_robot
 from armpose.sequence import FILTERS, frame_stem, iter_sequence, list_frames
-from armpose.viz import overlay_labels
 
 SEQUENCE_ONLY = ("filter", "rate_hz", "joints", "robot")
 
@@ -55,9 +53,7 @@ SEQUENCE_ONLY = ("filter", "rate_hz", "joints", "robot")
 def write_sequence_overlay(row: dict, image: np.ndarray, mask: np.ndarray | None, folder: Path) -> None:
     """A sequence frame with its mask and smoothed joints drawn on it, ``<frame_stem>_overlay.png``."""
     uv = np.array([[np.nan, np.nan] if p is None else p for p in row["joints_uv"]], dtype=np.float64)
-    drawn = overlay_labels(image, mask, uv.reshape(-1, 2))
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(drawn, cv2.COLOR_RGB2BGR))
-    atomic_write_bytes(Path(folder) / f"{frame_stem(row['image'])}_overlay.png", buf.tobytes())
+    write_overlay(image, mask, uv, folder, frame_stem(row["image"]))
 
 
 def sequence_angles(args: argparse.Namespace) -> np.ndarray | None:

@@ -218,7 +218,6 @@ def run(params: dict, root: Path | None = None) -> dict:
                                         for a, row in enumerate(conf["matrix"]) for p, n in enumerate(row) for _ in range(n)])
     atomic_write_text(res / "results_table.md", results_table(metrics, cfg["data_note"], cfg.get("headline", "single")))
     atomic_write_json(res / "env.json", environment(root, cfg["profile"]))
-    log.info("pixel scale %.4f", pixel_scale_of(base))
     return metrics
 
 
