@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from armpose.geometry import CAMERA_KEYS as KEYS, Camera, camera_problem
+from armpose.geometry import CAMERA_KEYS, Camera, camera_problem
 from armpose.io import InputFileError, read_json_input
 
 DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
@@ -37,9 +37,9 @@ def read_intrinsics(path: Path | str) -> tuple[Camera, np.ndarray | None]:
     raw = read_json_input(path, IntrinsicsError)
     if isinstance(raw, dict) and isinstance(raw.get("camera"), dict):
         raw = raw["camera"]
-    if not isinstance(raw, dict) or any(k not in raw for k in KEYS):
+    if not isinstance(raw, dict) or any(k not in raw for k in CAMERA_KEYS):
         raise IntrinsicsError(path, None, sorted(raw) if isinstance(raw, dict) else raw,
-                              f"intrinsics need {', '.join(KEYS)}")
+                              f"intrinsics need {', '.join(CAMERA_KEYS)}")
     problem = camera_problem(raw)
     if problem:
         raise IntrinsicsError(path, None, *problem)
