@@ -34,7 +34,8 @@ log = logging.getLogger(__name__)
 def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 32,
                   device: torch.device | str = "cpu", rows: np.ndarray | None = None,
                   mirror: bool = False, zoom: bool = False, zoom_settings: dict | None = None,
-                  fit: FitSettings | None = None, fit_sigmas: dict | None = None) -> tuple[dict, dict]:
+                  fit: FitSettings | None = None, fit_sigmas: dict | None = None,
+                  keep_masks: bool = False) -> tuple[dict, dict]:
     """``(pred, truth)`` dicts of per-frame numpy arrays over ``rows`` (default: every frame of
     ``split``). ``pred``: joints, base, type, type_probs, mask_counts; ``truth``: joints,
     joint_valid, base, type, intrinsics, distance, source, recording, row. With ``mirror``,
@@ -44,11 +45,12 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
     single pass, without the mirror, even when ``mirror`` is on); with ``fit``, ``pred["fit"]``
     those of the kinematic fit (:mod:`armpose.kinematic_fit`) to the zoom test's outputs (the
     single pass's without ``zoom``; per-type weights ``fit_sigmas``, :mod:`armpose.fit_sigmas`),
-    plus its joint angles ``q`` and poses ``T_cam_base``."""
+    plus its joint angles ``q`` and poses ``T_cam_base``. With ``keep_masks``, each set also holds
+    ``masks`` (N, H, W) bool, the predicted masks in network-input pixels."""
     arrays, _ = load_dataset(Path(data_dir))
     rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
     frames = LabelledFrames(Path(data_dir), rows)
-    single, averaged, zoomed = _Collected(), _Collected(), _Collected()
+    single, averaged, zoomed = _Collected(keep_masks), _Collected(keep_masks), _Collected(keep_masks)
     if zoom:
         threshold = float(getattr(model, "mask_threshold", 0.0))
         joint_counts = [get_robot(t).num_joints for t in frames.robot_types]
@@ -87,21 +89,28 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
 class _Collected:
     """Per-batch network outputs gathered into the per-frame arrays of :func:`predict_split`."""
 
-    def __init__(self):
-        self.joints, self.base, self.probs, self.counts = [], [], [], []
+    def __init__(self, keep_masks: bool = False):
+        self.joints, self.base, self.probs, self.counts, self.masks = [], [], [], [], []
+        self.keep_masks = keep_masks
 
     def add(self, model, out: dict, masks: np.ndarray) -> None:
         self.joints.append(out["joints"].float().cpu().numpy())
         self.base.append(out["base"].float().cpu().numpy())
         self.probs.append(out["type_logits"].float().softmax(-1).cpu().numpy())
-        self.counts.append(mask_counts(predicted_mask(model, out["mask_logits"][:, 0]).cpu().numpy(), masks))
+        predicted = predicted_mask(model, out["mask_logits"][:, 0]).cpu().numpy()
+        self.counts.append(mask_counts(predicted, masks))
+        if self.keep_masks:
+            self.masks.append(predicted)
 
     def arrays(self) -> dict:
         cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
         type_probs = cat(self.probs, (0, 0))
-        return {"joints": cat(self.joints, (0, 0, 3)), "base": cat(self.base, (0, 3)), "type_probs": type_probs,
-                "type": type_probs.argmax(1) if len(type_probs) else np.zeros(0, np.int64),
-                "mask_counts": cat(self.counts, (0, 4))}
+        out = {"joints": cat(self.joints, (0, 0, 3)), "base": cat(self.base, (0, 3)), "type_probs": type_probs,
+               "type": type_probs.argmax(1) if len(type_probs) else np.zeros(0, np.int64),
+               "mask_counts": cat(self.counts, (0, 4))}
+        if self.keep_masks:
+            out["masks"] = cat(self.masks, (0, 0, 0)).astype(bool)
+        return out
 
 
 def fitted(pred: dict, robot_types: list[str], settings: FitSettings, sigmas: dict | None = None) -> dict:
