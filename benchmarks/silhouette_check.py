@@ -166,6 +166,7 @@ def chosen_types(type_probs: np.ndarray, ious: np.ndarray, beta: float) -> np.nd
 
 
 def type_accuracy(chosen: np.ndarray, truth: dict, types: list[str]) -> dict:
+    """Per family (of the true type): the fraction of frames whose ``chosen`` type is the true one."""
     fam = np.asarray(family_of(types))[truth["type"]]
     return {f: round(float(np.mean(chosen[fam == f] == truth["type"][fam == f])), 4) for f in dict.fromkeys(fam)}
 
