@@ -1,13 +1,17 @@
-"""armpose.evaluate.predict_split: the predicted masks it keeps on request."""
+"""armpose.evaluate.predict_split: the predicted masks it keeps on request, and the zoom test on the mirror test."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from armpose.data import LabelledFrames, split_indices
 from armpose.evaluate import predict_split
 from armpose.metrics import mask_counts
+from armpose.mirror_test import MirrorAveraged, forward_with_mirror
 from armpose.model import build_model
+from armpose.robots import get_robot
+from armpose.zoom_test import zoom_refine
 
 
 def test_kept_masks_are_the_ones_scored(tiny_project, one_torch_thread):
@@ -28,3 +32,27 @@ def test_kept_masks_are_the_ones_scored(tiny_project, one_torch_thread):
     plain, _ = predict_split(model, data_dir, rows=rows, batch_size=2)
     assert "masks" not in plain
     np.testing.assert_array_equal(plain["mask_counts"], pred["mask_counts"])
+
+
+def test_zoom_on_mirror_runs_both_looks_on_the_mirror_test(tiny_project, one_torch_thread):
+    root, _ = tiny_project
+    data_dir = root / "data" / "labels"
+    torch.manual_seed(0)
+    model = build_model({"width": 8}).eval()
+    rows = split_indices(data_dir, "test")[:4]
+    with pytest.raises(ValueError, match="needs zoom and mirror"):
+        predict_split(model, data_dir, rows=rows, zoom=True, zoom_on_mirror=True)
+    pred, _ = predict_split(model, data_dir, rows=rows, batch_size=len(rows), mirror=True, zoom=True,
+                            zoom_on_mirror=True)
+    plain, _ = predict_split(model, data_dir, rows=rows, batch_size=len(rows), mirror=True, zoom=True)
+    frames = LabelledFrames(data_dir, rows)
+    images = torch.stack([frames[i]["image"] for i in range(len(frames))])
+    cams = torch.stack([frames[i]["intrinsics"] for i in range(len(frames))])
+    counts = [get_robot(t).num_joints for t in frames.robot_types]
+    with torch.no_grad():
+        _, mean = forward_with_mirror(model, images, cams[:, 0], cams[:, 2])
+        expected = zoom_refine(MirrorAveraged(model, cams[:, 0], cams[:, 2]), images, mean, cams, None, counts,
+                               float(model.mask_threshold))
+    np.testing.assert_allclose(pred["zoom"]["joints"], expected["joints"].numpy(), atol=1e-5)
+    np.testing.assert_allclose(pred["mirror"]["joints"], plain["mirror"]["joints"], atol=1e-6)   # the mirror test itself unchanged
+    assert np.abs(pred["zoom"]["joints"] - plain["zoom"]["joints"]).max() > 1e-4              # the flag changes the zoom test

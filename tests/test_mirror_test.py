@@ -4,7 +4,7 @@ import pytest
 import torch
 from torch import nn
 
-from armpose.mirror_test import forward_with_mirror, mirror_average, unmirror_points
+from armpose.mirror_test import MirrorAveraged, forward_with_mirror, mirror_average, unmirror_points
 from armpose.report import option_section
 
 W, H, FX, FY, CX, CY = 64, 48, 60.0, 60.0, 33.0, 22.5     # principal point off the centre column (31.5)
@@ -114,3 +114,16 @@ def test_report_section_lists_single_and_mirror_per_family():
     assert "| UR | 19.50 / 19.10 | 17.70 / 17.70 | 84.4 / 84.4 | 99.4 / 99.4 |" in text
     assert "8.3 ms single, 14.2 ms with the mirror test" in text
     assert option_section("mirror_test", {"UR": fam}, {}, {}) == []
+
+
+def test_mirror_averaged_module_runs_the_mirror_test_on_every_call(pair):
+    points, _, mean = pair
+    net = BiasedBlobNet()
+    net.mask_threshold = torch.tensor(1.5)
+    wrapped = MirrorAveraged(net, FX, CX)
+    with torch.no_grad():
+        out = wrapped(blob_images(points))
+    for key in ("joints", "base", "type_logits", "mask_logits"):
+        torch.testing.assert_close(out[key], mean[key])
+    assert float(wrapped.mask_threshold) == 1.5
+    assert MirrorAveraged(BiasedBlobNet(), FX, CX).mask_threshold is None   # a module without one: threshold 0

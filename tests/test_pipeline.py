@@ -53,7 +53,9 @@ def test_dvc_repro_runs_every_stage_and_then_does_nothing(tmp_path, tiny_params)
     assert "## Mirror test" in table
     assert test["kinematic_fit"]["all"]["frames"] == test["all"]["frames"]           # evaluate.kinematic_fit
     assert latency["fit_batch1_median_ms"] > 0                                      # latency.kinematic_fit
-    assert "## Kinematic fit" in table and "with the zoom test and the fit" in table  # evaluate.headline
+    assert "## Kinematic fit" in table and "with the mirror and zoom tests and the fit" in table  # evaluate.headline
+    assert test["kinematic_fit"]["on_mirror_test"] and "--mirror --zoom --fit" in table            # evaluate.zoom_on_mirror
+    assert json.loads((work / "results" / "latency.json").read_text())["zoom_on_mirror"]          # latency.zoom_on_mirror
     from armpose.train import load_checkpoint                                       # transfer_stage2.fit_sigmas:
     extra = load_checkpoint(work / "models" / "transfer_stage2" / "model.pt")["extra"]   # measured (the tiny set has
     assert extra["fit_sigmas"] == {}                                                # no held-out frames left)

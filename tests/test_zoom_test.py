@@ -197,3 +197,15 @@ def test_report_section_lists_single_and_zoom_per_family():
                                     {"cpu": {"batch1_median_ms": 11.8, "zoom_batch1_median_ms": 29.9}}))
     assert "## Zoom test" in text and "| UR | 14.30 / 14.30 | 12.60 / 12.60 | 90.2 / 92.0 | 99.2 / 99.2 |" in text
     assert "11.8 ms single, 29.9 ms with the zoom test" in text
+
+
+def test_report_section_names_the_mirror_when_the_zoom_test_ran_on_it():
+    fam = {"joint_median_cm": 14.3, "base_median_cm": 12.6, "type_accuracy": 0.902, "mask_accuracy": 0.992}
+    latency = {"cpu": {"batch1_median_ms": 5.0, "zoom_batch1_median_ms": 25.0, "fit_batch1_median_ms": 70.0}}
+    for key, command, phrase in (("zoom_test", "`armpose predict --mirror --zoom`", "with the mirror and zoom tests."),
+                                 ("kinematic_fit", "`armpose predict --mirror --zoom --fit`",
+                                  "with the mirror and zoom tests and the fit.")):
+        mirrored = "\n".join(option_section(key, {"UR": fam}, {"by_family": {"UR": fam}, "on_mirror_test": True}, latency))
+        plain = "\n".join(option_section(key, {"UR": fam}, {"by_family": {"UR": fam}}, latency))
+        assert command in mirrored and phrase in mirrored and "MirrorAveraged" in mirrored
+        assert command not in plain and "mirror" not in plain

@@ -20,7 +20,7 @@ from armpose.fit_sigmas import checkpoint_fit_sigmas
 from armpose.kinematic_fit import FitSettings, fit_predictions
 from armpose.labels.dataset import SOURCE_CODES, load_dataset
 from armpose.metrics import confusion_matrix, mask_counts, summarise
-from armpose.mirror_test import forward_with_mirror
+from armpose.mirror_test import MirrorAveraged, forward_with_mirror
 from armpose.model import predicted_mask
 from armpose.robots import get_robot
 from armpose.inference import load_inference_model
@@ -35,18 +35,21 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
                   device: torch.device | str = "cpu", rows: np.ndarray | None = None,
                   mirror: bool = False, zoom: bool = False, zoom_settings: dict | None = None,
                   fit: FitSettings | None = None, fit_sigmas: dict | None = None,
-                  keep_masks: bool = False) -> tuple[dict, dict]:
+                  keep_masks: bool = False, zoom_on_mirror: bool = False) -> tuple[dict, dict]:
     """``(pred, truth)`` dicts of per-frame numpy arrays over ``rows`` (default: every frame of
     ``split``). ``pred``: joints, base, type, type_probs, mask_counts; ``truth``: joints,
     joint_valid, base, type, intrinsics, distance, source, recording, row. With ``mirror``,
     ``pred["mirror"]`` holds the same keys for the mirror test (:mod:`armpose.mirror_test`),
     from the same forward passes; with ``zoom``, ``pred["zoom"]`` those of the zoom test
-    (:mod:`armpose.zoom_test` with ``zoom_settings``: one more pass per batch; scored on the
-    single pass, without the mirror, even when ``mirror`` is on); with ``fit``, ``pred["fit"]``
+    (:mod:`armpose.zoom_test` with ``zoom_settings``: one more pass per batch; on the single
+    pass, or with ``zoom_on_mirror`` (which needs ``mirror``) on the mirror test's, both looks
+    mirror-averaged as in ``armpose predict --mirror --zoom``); with ``fit``, ``pred["fit"]``
     those of the kinematic fit (:mod:`armpose.kinematic_fit`) to the zoom test's outputs (the
     single pass's without ``zoom``; per-type weights ``fit_sigmas``, :mod:`armpose.fit_sigmas`),
     plus its joint angles ``q`` and poses ``T_cam_base``. With ``keep_masks``, each set also holds
     ``masks`` (N, H, W) bool, the predicted masks in network-input pixels."""
+    if zoom_on_mirror and not (zoom and mirror):
+        raise ValueError("zoom_on_mirror runs the zoom test on the mirror test's passes: it needs zoom and mirror")
     arrays, _ = load_dataset(Path(data_dir))
     rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
     frames = LabelledFrames(Path(data_dir), rows)
@@ -66,7 +69,10 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
             out = model(to_channels_last(images))
         single.add(model, out, masks)
         if zoom:
-            zoomed.add(model, zoom_refine(model, images, out, intrinsics, zoom_settings, joint_counts, threshold), masks)
+            first, forward = ((mean, MirrorAveraged(model, intrinsics[:, 0], intrinsics[:, 2])) if zoom_on_mirror
+                              else (out, model))
+            zoomed.add(model, zoom_refine(forward, images, first, intrinsics, zoom_settings, joint_counts, threshold),
+                       masks)
     pred = single.arrays()
     if mirror:
         pred["mirror"] = averaged.arrays()
@@ -158,17 +164,18 @@ def pixel_scale_of(base: dict, truth: dict) -> np.ndarray:
 
 def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str = "test",
                         batch_size: int = 32, device: str = "cpu", mirror: bool = False,
-                        zoom: bool = False, fit: FitSettings | None = None) -> tuple[dict, dict, dict]:
+                        zoom: bool = False, fit: FitSettings | None = None,
+                        zoom_on_mirror: bool = False) -> tuple[dict, dict, dict]:
     """``(metrics, pred, truth)`` of one checkpoint on ``split``; with ``mirror``, also
     ``metrics["mirror_test"]``: the ``all`` and ``by_family`` metrics of the mirror test
     (:mod:`armpose.mirror_test`, with ``by_type``, ``by_source`` and ``confusion`` too), and
     ``pred["mirror"]`` its predictions; with ``zoom``,
     ``metrics["zoom_test"]`` and ``pred["zoom"]`` likewise for the zoom test (:mod:`armpose.zoom_test`,
-    its settings from the checkpoint's config); with ``fit``, ``metrics["kinematic_fit"]`` and
+    its settings from the checkpoint's config; on the mirror test's passes with ``zoom_on_mirror``); with ``fit``, ``metrics["kinematic_fit"]`` and
     ``pred["fit"]`` for the kinematic fit (:mod:`armpose.kinematic_fit`)."""
     model, config = load_inference_model(checkpoint, device)
     pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror, zoom=zoom,
-                                zoom_settings=settings_from_config(config), fit=fit,
+                                zoom_settings=settings_from_config(config), fit=fit, zoom_on_mirror=zoom_on_mirror,
                                 fit_sigmas=checkpoint_fit_sigmas(checkpoint) if fit is not None else None)
     metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base, truth))
     for key, name in (("mirror", "mirror_test"), ("zoom", "zoom_test"), ("fit", "kinematic_fit")):

@@ -22,6 +22,7 @@ Joints and base are the mean of the two estimates, mask logits the mean of the t
 from __future__ import annotations
 
 import torch
+from torch import nn
 
 OUTPUT_KEYS = ("joints", "base", "type_logits", "mask_logits")
 
@@ -63,3 +64,19 @@ def forward_with_mirror(model, images: torch.Tensor, fx, cx) -> tuple[dict, dict
     single = {k: out[k][:b] for k in OUTPUT_KEYS if k in out}
     mirrored = {k: out[k][b:] for k in OUTPUT_KEYS if k in out}
     return single, mirror_average(single, mirrored, fx, cx, width)
+
+
+class MirrorAveraged(nn.Module):
+    """``model`` whose every forward pass is the mirror-test average (:func:`forward_with_mirror`),
+    for a network camera with focal length ``fx`` and principal point column ``cx`` (pixels of the
+    network input; numbers, or one per frame of the batches it will see). Hand it to the zoom test
+    in place of the model, and both of its looks are mirror-averaged, as ``armpose predict
+    --mirror --zoom`` does. Its ``mask_threshold`` is the model's."""
+
+    def __init__(self, model: nn.Module, fx, cx):
+        super().__init__()
+        self.model, self.fx, self.cx = model, fx, cx
+        self.mask_threshold = getattr(model, "mask_threshold", None)
+
+    def forward(self, images: torch.Tensor) -> dict:
+        return forward_with_mirror(self.model, images, self.fx, self.cx)[1]

@@ -173,7 +173,11 @@ def run(params: dict, root: Path | None = None) -> dict:
                                              mirror=bool(cfg.get("mirror_test", False)) and name == "transfer",
                                              zoom=bool(cfg.get("zoom_test", False)) and name == "transfer",
                                              fit=FitSettings() if cfg.get("kinematic_fit", False) and name == "transfer"
-                                             else None)
+                                             else None,
+                                             zoom_on_mirror=bool(cfg.get("zoom_on_mirror", False)) and name == "transfer")
+        for key in ("zoom_test", "kinematic_fit"):
+            if key in m:
+                m[key]["on_mirror_test"] = bool(cfg.get("zoom_on_mirror", False))
         metrics[name] = {"checkpoint": ckpt, "test": m}
         preds[name] = (pred, truth)
     for name, pred_truth in preds.items():

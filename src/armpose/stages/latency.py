@@ -6,7 +6,9 @@ the mirror test (``armpose predict --mirror``: each image with its mirror, one f
 with ``zoom_test``, batch 1 with the zoom test (``armpose predict --zoom``: two forwards,
 the second on the view of a camera turned to the robot and moved closer, settings from the
 checkpoint); with ``kinematic_fit``, batch 1 with the zoom test (when on) and the kinematic fit
-(``armpose predict --zoom --fit``, :mod:`armpose.kinematic_fit`). On CPU with ``threads`` torch threads,
+(``armpose predict --zoom --fit``, :mod:`armpose.kinematic_fit`); with ``zoom_on_mirror`` as
+well, those two run on mirror-averaged passes (``armpose predict --mirror --zoom [--fit]``, as
+the ``evaluate`` stage scores them with its ``zoom_on_mirror``). On CPU with ``threads`` torch threads,
 and on CUDA as well when a GPU is present. Inputs are test images from ``data/labels`` at
 the network's 256x212 input. Writes ``results/latency.json``; ``benchmarks/bench_inference.py``
 is the same function from the command line.
@@ -28,7 +30,7 @@ from armpose.data import LabelledFrames, split_indices
 from armpose.inference import load_inference_model
 from armpose.io import atomic_write_json
 from armpose.labels.dataset import load_dataset
-from armpose.mirror_test import forward_with_mirror
+from armpose.mirror_test import MirrorAveraged, forward_with_mirror
 from armpose.robots import get_robot
 from armpose.fit_sigmas import checkpoint_fit_sigmas
 from armpose.kinematic_fit import fit_predictions
@@ -62,7 +64,7 @@ def time_device(model, images: torch.Tensor, device: torch.device, frames: int, 
                 mirror_camera: tuple[float, float] | None = None,
                 zoom_camera: tuple[float, float, float, float] | None = None, zoom_settings: dict | None = None,
                 joint_counts: list[int] | None = None, fit_types: list[str] | None = None,
-                fit_sigmas: dict | None = None) -> dict:
+                fit_sigmas: dict | None = None, zoom_on_mirror: bool = False) -> dict:
     """Batch-1 latency (ms) and batch-``batch`` throughput (frames/s) of ``model`` on ``device``;
     with ``mirror_camera`` (the network camera's fx, cx in pixels), also the batch-1 latency of
     the mirror test (:func:`armpose.mirror_test.forward_with_mirror`, two images a forward);
@@ -70,8 +72,14 @@ def time_device(model, images: torch.Tensor, device: torch.device, frames: int, 
     (:func:`armpose.zoom_test.forward_with_zoom` with ``zoom_settings``, two forwards and the
     resampling; ``joint_counts``
     per robot type, as ``armpose predict`` passes them); with ``fit_types`` (the robot types by class
-    index), that of the zoom test (or the single pass) followed by the kinematic fit of the predicted type."""
+    index), that of the zoom test (or the single pass) followed by the kinematic fit of the predicted type.
+    With ``zoom_on_mirror`` (needs ``mirror_camera``), the zoom test's two looks and the single pass
+    before the fit are mirror-averaged (:class:`armpose.mirror_test.MirrorAveraged`), as in
+    ``armpose predict --mirror --zoom --fit``."""
+    if zoom_on_mirror and mirror_camera is None:
+        raise ValueError("latency.zoom_on_mirror times the zoom test on the mirror test's passes: it needs mirror_test")
     model = model.to(device)
+    looked = MirrorAveraged(model, *mirror_camera) if zoom_on_mirror else model
     imgs = images.to(device).contiguous(memory_format=torch.channels_last)
     times = _batch1_times(model, imgs, device, frames, warmup)
     big = imgs[np.arange(batch) % len(imgs)]
@@ -90,13 +98,13 @@ def time_device(model, images: torch.Tensor, device: torch.device, frames: int, 
         out.update(mirror_batch1_median_ms=round(float(np.median(mirrored)), 3),
                    mirror_batch1_p95_ms=round(float(np.percentile(mirrored, 95)), 3))
     if zoom_camera is not None:
-        zoomed = _batch1_times(lambda x: forward_with_zoom(model, x, zoom_camera, zoom_settings, joint_counts),
+        zoomed = _batch1_times(lambda x: forward_with_zoom(looked, x, zoom_camera, zoom_settings, joint_counts),
                                imgs, device, frames, warmup)
         out.update(zoom_batch1_median_ms=round(float(np.median(zoomed)), 3),
                    zoom_batch1_p95_ms=round(float(np.percentile(zoomed, 95)), 3))
     if fit_types is not None:
         def fitted(x):
-            out = forward_with_zoom(model, x, zoom_camera, zoom_settings, joint_counts)[1] if zoom_camera else model(x)
+            out = forward_with_zoom(looked, x, zoom_camera, zoom_settings, joint_counts)[1] if zoom_camera else looked(x)
             types = out["type_logits"].argmax(-1).cpu().numpy()
             return fit_predictions(out["joints"].double().cpu().numpy(), out["base"].double().cpu().numpy(), types,
                                    fit_types, sigmas=fit_sigmas)
@@ -123,9 +131,11 @@ def run(params: dict, root: Path | None = None) -> dict:
     zoom = (fx, fy, cx, cy) if cfg.get("zoom_test", False) else None
     fit_types = list(config["base"]["robot_types"]) if cfg.get("kinematic_fit", False) else None
     options = (mirror, zoom, settings_from_config(config), counts, fit_types,
-               checkpoint_fit_sigmas(root / cfg["checkpoint"]) if fit_types else None)
+               checkpoint_fit_sigmas(root / cfg["checkpoint"]) if fit_types else None,
+               bool(cfg.get("zoom_on_mirror", False)))
     result = {"checkpoint": cfg["checkpoint"], "input": f"{images.shape[-1]}x{images.shape[-2]}",
               "paper_ms": [19, 23], "paper_device": "GTX 1080 Ti", "target_cpu_median_ms": 15.0,
+              "zoom_on_mirror": bool(cfg.get("zoom_on_mirror", False)),
               "cpu": {"threads": int(cfg["threads"]), "processor": platform.processor() or platform.machine(),
                       "cpu_count": os.cpu_count(),
                       **time_device(model, images, torch.device("cpu"), int(cfg["frames"]), int(cfg["warmup"]),
