@@ -1,6 +1,6 @@
 """Test-split scores of any checkpoints, for A/B comparisons of a stage's settings.
 
-    python benchmarks/score_checkpoint.py CHECKPOINT [CHECKPOINT ...] [--families UR] [--mirror] [--zoom] [--fit] [--out FILE]
+    python benchmarks/score_checkpoint.py CHECKPOINT [CHECKPOINT ...] [--families UR] [--mirror] [--zoom] [--fit] [--zoom-on-mirror] [--out FILE]
 
 Scores each checkpoint on the test split of ``data/labels`` with the ``evaluate`` stage's
 metrics (:func:`armpose.evaluate.evaluate_checkpoint`) and prints, per robot family and per
@@ -10,7 +10,8 @@ To score the checkpoint of another commit's settings, check that commit out and 
 stage (``dvc repro pretrain``) first; the dataset must be the same for the scores to compare.
 ``--mirror`` adds the scores of the mirror test (``mirror_test``, :mod:`armpose.mirror_test`),
 ``--zoom`` those of the zoom test (``zoom_test``, :mod:`armpose.zoom_test`), ``--fit`` those of the
-kinematic fit (``kinematic_fit``, :mod:`armpose.kinematic_fit`; to the zoom test's estimate with ``--zoom``).
+kinematic fit (``kinematic_fit``, :mod:`armpose.kinematic_fit`; to the zoom test's estimate with ``--zoom``);
+``--zoom-on-mirror`` runs the zoom test on the mirror test's passes, as the default ``evaluate`` stage does.
 ``--out`` also writes the scores as JSON (atomically).
 """
 from __future__ import annotations
@@ -49,6 +50,8 @@ def main() -> None:
     ap.add_argument("--mirror", action="store_true", help="also score the mirror test")
     ap.add_argument("--zoom", action="store_true", help="also score the zoom test")
     ap.add_argument("--fit", action="store_true", help="also score the kinematic fit")
+    ap.add_argument("--zoom-on-mirror", action="store_true",
+                    help="run the zoom test (and the fit) on the mirror test's passes (needs --mirror --zoom)")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -58,7 +61,7 @@ def main() -> None:
     out = {}
     for ckpt in args.checkpoints:
         metrics, _, _ = evaluate_checkpoint(ckpt, root / "data" / "labels", base, mirror=args.mirror, zoom=args.zoom,
-                                            fit=FitSettings() if args.fit else None)
+                                            fit=FitSettings() if args.fit else None, zoom_on_mirror=args.zoom_on_mirror)
         out[str(ckpt)] = scores(metrics, args.families, list(base["robot_types"]))
         for flag, name in ((args.mirror, "mirror_test"), (args.zoom, "zoom_test"), (args.fit, "kinematic_fit")):
             if flag:

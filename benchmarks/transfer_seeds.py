@@ -9,7 +9,8 @@ another shuffle and other augmentations. Each seed works in its own folder,
 ``models/transfer_seeds/<tag>/seed_<S>/`` (``data/`` and ``models/pretrain`` linked from the
 project), so it never touches the pipeline's models, and an interrupted seed resumes there from
 its ``last.pt``. Each network is scored on the test split as the ``evaluate`` stage scores the
-headline model (zoom test and kinematic fit, :func:`armpose.evaluate.evaluate_checkpoint`);
+headline model (zoom test and kinematic fit, on the mirror test's passes when
+``evaluate.zoom_on_mirror`` says so; :func:`armpose.evaluate.evaluate_checkpoint`);
 the project's own ``models/transfer_stage2/model.pt`` is scored too, as the pipeline's run
 (its seed offset is the one in ``params.yaml``).
 
@@ -87,10 +88,11 @@ def spread(runs: dict) -> dict:
     return out
 
 
-def score(stage2_dir: Path, root: Path, base: dict) -> dict:
-    """:func:`family_scores` of ``stage2_dir/model.pt``; its step count from the stage's ``summary.json``."""
+def score(stage2_dir: Path, root: Path, base: dict, on_mirror: bool = False) -> dict:
+    """:func:`family_scores` of ``stage2_dir/model.pt`` (the zoom test on the mirror test's passes
+    with ``on_mirror``); its step count from the stage's ``summary.json``."""
     metrics, _, _ = evaluate_checkpoint(stage2_dir / "model.pt", root / "data" / "labels", base, zoom=True,
-                                        fit=FitSettings())
+                                        fit=FitSettings(), mirror=on_mirror, zoom_on_mirror=on_mirror)
     return family_scores(metrics, json.loads((stage2_dir / "summary.json").read_text()).get("steps"))
 
 
@@ -107,7 +109,8 @@ def main() -> None:
     for text in args.overrides:  # a typo fails here, before any training
         override_from_text(text, params)
     tag = tag_of(args.overrides)
-    runs = {"pipeline": score(root / "models" / "transfer_stage2", root, params["base"])}
+    on_mirror = bool(params["evaluate"].get("zoom_on_mirror", False))
+    runs = {"pipeline": score(root / "models" / "transfer_stage2", root, params["base"], on_mirror)}
     runs["pipeline"]["seed_offset"] = int(params["transfer_stage2"].get("seed_offset", 0))
     for seed in args.seeds:
         work = root / "models" / "transfer_seeds" / tag / f"seed_{seed}"
@@ -115,11 +118,11 @@ def main() -> None:
         p = seed_params(params, seed, args.overrides)
         for stage in STAGES:
             run_stage(stage, p, work)
-        runs[f"seed_{seed}"] = {**score(work / "models" / "transfer_stage2", root, p["base"]),
+        runs[f"seed_{seed}"] = {**score(work / "models" / "transfer_stage2", root, p["base"], on_mirror),
                                 "seed_offset": seed}
         print(f"seed {seed}:", json.dumps(runs[f"seed_{seed}"]["by_family"]))
     seeds = {k: v for k, v in runs.items() if k != "pipeline" or not args.overrides}
-    result = {"tag": tag, "overrides": args.overrides, "runs": runs, "spread_over": sorted(seeds), "spread": spread(seeds)}
+    result = {"tag": tag, "overrides": args.overrides, "zoom_on_mirror": on_mirror, "runs": runs, "spread_over": sorted(seeds), "spread": spread(seeds)}
     atomic_write_json(args.out or root / "results" / "transfer_seeds.json", result)
     print(json.dumps(result["spread"], indent=1))
 

@@ -138,7 +138,9 @@ if "mirror_test" in metrics["transfer"]["test"]:
 # --zoom`). It costs one more forward pass (`latency.zoom_test` times it). The stored test
 # frames are already at the network's 256x212, so the view has no new detail, only a larger
 # robot for the network's stride-8 maps; `armpose predict --zoom` works on the network input
-# in the same way.
+# in the same way. With `evaluate.zoom_on_mirror` (the default profile), both looks are the
+# mirror test's averages, as in `armpose predict --mirror --zoom`; the section's caption says
+# which (`benchmarks/mirror_zoom.py` compares the two).
 
 # %%
 if "zoom_test" in metrics["transfer"]["test"]:
