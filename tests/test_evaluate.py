@@ -14,12 +14,17 @@ from armpose.robots import get_robot
 from armpose.zoom_test import zoom_refine
 
 
-def test_kept_masks_are_the_ones_scored(tiny_project, one_torch_thread):
+@pytest.fixture(name="untrained")
+def untrained_fixture(tiny_project, one_torch_thread):
+    """``(model, data_dir, rows)``: an untrained width-8 network in eval mode and 5 test rows of the tiny project."""
     root, _ = tiny_project
     data_dir = root / "data" / "labels"
     torch.manual_seed(0)
-    model = build_model({"width": 8}).eval()
-    rows = split_indices(data_dir, "test")[:5]
+    return build_model({"width": 8}).eval(), data_dir, split_indices(data_dir, "test")[:5]
+
+
+def test_kept_masks_are_the_ones_scored(untrained):
+    model, data_dir, rows = untrained
     frames = LabelledFrames(data_dir, rows)
     with torch.no_grad():   # the median logit as the threshold: an untrained network's masks then hold both values
         logits = model(torch.stack([frames[i]["image"] for i in range(len(frames))]))["mask_logits"]
@@ -34,12 +39,8 @@ def test_kept_masks_are_the_ones_scored(tiny_project, one_torch_thread):
     np.testing.assert_array_equal(plain["mask_counts"], pred["mask_counts"])
 
 
-def test_zoom_on_mirror_runs_both_looks_on_the_mirror_test(tiny_project, one_torch_thread):
-    root, _ = tiny_project
-    data_dir = root / "data" / "labels"
-    torch.manual_seed(0)
-    model = build_model({"width": 8}).eval()
-    rows = split_indices(data_dir, "test")[:4]
+def test_zoom_on_mirror_runs_both_looks_on_the_mirror_test(untrained):
+    model, data_dir, rows = untrained
     with pytest.raises(ValueError, match="needs zoom and mirror"):
         predict_split(model, data_dir, rows=rows, zoom=True, zoom_on_mirror=True)
     pred, _ = predict_split(model, data_dir, rows=rows, batch_size=len(rows), mirror=True, zoom=True,
