@@ -30,7 +30,7 @@ import torch
 
 from armpose.geometry import Camera
 from armpose.intrinsics import load_intrinsics
-from armpose.mirror_test import forward_with_mirror
+from armpose.mirror_test import MirrorAveraged
 from armpose.io import atomic_write_bytes
 from armpose.fit_sigmas import checkpoint_fit_sigmas
 from armpose.kinematic_fit import fit_predictions
@@ -146,10 +146,11 @@ class Predictor:
                                else f"{ckpt_path}: cannot use this checkpoint ({msg})") from err
         self.model, self.device, self.mirror, self.zoom, self.fit = model, device, mirror, zoom, fit
         self.num_joints = [get_robot(t).num_joints for t in self.types]
+        self._looked = MirrorAveraged(model, self.net.fx, self.net.cx) if mirror else model
 
     def forward(self, x: torch.Tensor) -> dict:
         """The network's outputs on the network-input batch ``x``, mirror-test averaged with ``mirror``."""
-        return forward_with_mirror(self.model, x, self.net.fx, self.net.cx)[1] if self.mirror else self.model(x)
+        return self._looked(x)
 
     @torch.no_grad()
     def __call__(self, image: np.ndarray, camera: Camera | None = None) -> dict:
