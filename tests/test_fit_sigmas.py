@@ -73,3 +73,38 @@ def test_add_fit_sigmas_measures_held_out_frames_and_stores_them_once(tiny_proje
     del old["extra"]["fit_sigmas_version"]
     torch.save(old, ckpt)
     assert add_fit_sigmas(ckpt, data, used, seed=0) == sigmas == checkpoint_fit_sigmas(ckpt)   # measured again
+
+
+def test_add_fit_sigmas_on_mirror_measures_the_mirror_tests_zoom_estimates(tiny_project, tmp_path):
+    from armpose.evaluate import predict_split
+    from armpose.fit_sigmas import add_fit_sigmas, fit_sigmas_on_mirror, held_out_rows
+    from armpose.model import build_model
+    from armpose.train import save_checkpoint
+    from armpose.zoom_test import settings_from_config
+    root, tparams = tiny_project
+    data = root / "data" / "labels"
+    base = {**tparams["base"], "model": {"width": 8}}
+    config = {"stage": "transfer_stage2", "cfg": {"robots": ["ur3", "panda"], "augment": {"zoom": {"p": 0.5}}},
+              "base": base}
+    torch.manual_seed(0)
+    model = build_model(base["model"]).eval()
+    for p in model.parameters():             # an untrained head predicts one depth: give it some spread
+        p.data.add_(0.05 * torch.randn_like(p))
+    ckpt = tmp_path / "model.pt"
+    save_checkpoint(ckpt, model, None, None, 1, "transfer_stage2", config)
+    arrays, _ = load_dataset(data)
+    used = split_indices(arrays, "train")[::2]
+    rows = held_out_rows(data, used, [0, 4], seed=0)
+    types = list(base["robot_types"])
+
+    def expected(on_mirror):
+        pred, truth = predict_split(model, data, rows=rows, mirror=on_mirror, zoom=True,
+                                    zoom_settings=settings_from_config(config), zoom_on_mirror=on_mirror)
+        return sigmas_from_predictions(pred["zoom"], truth, types)
+
+    single = add_fit_sigmas(ckpt, data, used, seed=0)
+    assert single == expected(False) and not fit_sigmas_on_mirror(ckpt)
+    mirrored = add_fit_sigmas(ckpt, data, used, seed=0, on_mirror=True)   # other passes: measured again
+    assert mirrored == expected(True) and fit_sigmas_on_mirror(ckpt)
+    assert mirrored != single
+    assert add_fit_sigmas(ckpt, data, used, seed=0, on_mirror=True) == mirrored

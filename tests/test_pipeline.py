@@ -59,6 +59,8 @@ def test_dvc_repro_runs_every_stage_and_then_does_nothing(tmp_path, tiny_params)
     from armpose.train import load_checkpoint                                       # transfer_stage2.fit_sigmas:
     extra = load_checkpoint(work / "models" / "transfer_stage2" / "model.pt")["extra"]   # measured (the tiny set has
     assert extra["fit_sigmas"] == {}                                                # no held-out frames left)
+    assert extra["fit_sigmas_on_mirror"] and test["kinematic_fit"]["sigmas_on_mirror_test"]  # .fit_sigmas_on_mirror
+    assert "measured after stage 2 on held-out training frames, on mirror-averaged passes" in table
     before = {p.name: p.read_bytes() for p in (work / "data" / "labels").glob("*.npy")}
     out = _sh("dvc repro labels", work)
     assert "didn't change" in out or "up to date" in out, out

@@ -25,7 +25,7 @@ def _weights(path: Path) -> dict:
     return load_checkpoint(path)["model"]
 
 
-def test_stage1_keeps_frozen_layers_bit_identical(tiny_project, tmp_path):
+def test_stage1_keeps_frozen_layers_bit_identical(tiny_project, tmp_path, caplog):
     root, tparams = tiny_project
     (tmp_path / "data").symlink_to(root / "data")
     params = quick(tparams)
@@ -46,6 +46,17 @@ def test_stage1_keeps_frozen_layers_bit_identical(tiny_project, tmp_path):
     files = {p.name: p.read_bytes() for p in stage1.glob("*.pt")}
     transfer_stage1.run(params, tmp_path)
     assert {p.name: p.read_bytes() for p in stage1.glob("*.pt")} == files
+    # what stage 2 measures after training changes: the weights stay, the sigmas are measured again
+    stage2 = tmp_path / "models" / "transfer_stage2" / "model.pt"
+    trained = load_checkpoint(stage2)
+    assert params["transfer_stage2"]["fit_sigmas"] and not trained["extra"].get("fit_sigmas_on_mirror", False)
+    params["transfer_stage2"]["fit_sigmas_on_mirror"] = True
+    with caplog.at_level("INFO", logger="armpose.train"):
+        transfer_stage2.run(params, tmp_path)
+    assert "resuming" in caplog.text and "starting afresh" not in caplog.text
+    again = load_checkpoint(stage2)
+    assert again["step"] == trained["step"] and again["extra"]["fit_sigmas_on_mirror"]
+    assert all(torch.equal(again["model"][k], v) for k, v in trained["model"].items())
 
 
 def test_stride4_heads_train_on_cached_trunk_features(tiny_project, tmp_path):

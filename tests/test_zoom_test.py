@@ -209,3 +209,6 @@ def test_report_section_names_the_mirror_when_the_zoom_test_ran_on_it():
         plain = "\n".join(option_section(key, {"UR": fam}, {"by_family": {"UR": fam}}, latency))
         assert command in mirrored and phrase in mirrored and "MirrorAveraged" in mirrored
         assert command not in plain and "mirror" not in plain
+    for on_mirror, passes in ((True, "on mirror-averaged passes"), (False, "on single passes")):
+        section = {"by_family": {"UR": fam}, "on_mirror_test": True, "sigmas_on_mirror_test": on_mirror}
+        assert passes in "\n".join(option_section("kinematic_fit", {"UR": fam}, section, latency))

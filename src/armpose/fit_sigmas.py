@@ -6,7 +6,9 @@ are depends on the network and the robot type: on our held-out frames the transf
 Panda rays are twice as far off as the UR ones. So a training stage with ``fit_sigmas: true``
 measures both per robot type, after training, on up to ``HELD_OUT_PER_TYPE`` frames per type of
 the training split that the stage did not train on (never the test split), through the zoom test
-when the network was trained for it, and stores them in its checkpoint (``extra.fit_sigmas``):
+when the network was trained for it, and with ``fit_sigmas_on_mirror: true`` on the mirror test's
+passes (the estimates ``evaluate`` with ``zoom_on_mirror`` fits), and stores them in its
+checkpoint (``extra.fit_sigmas``, with ``extra.fit_sigmas_on_mirror``):
 
 - ``ray_sigma``: the median distance between predicted and true rays (``x/z, y/z``) over the base
   and valid joints;
@@ -28,13 +30,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from armpose.data import LabelledFrames, split_indices
+from armpose.data import split_indices
 from armpose.io import atomic_write_bytes
 from armpose.labels.dataset import load_dataset
 from armpose.metrics import frame_depth_ratio
-from armpose.robots import get_robot
 from armpose.train import load_checkpoint, load_model
-from armpose.zoom_test import settings_from_config, trained_for_zoom, zoom_refine
+from armpose.zoom_test import settings_from_config, trained_for_zoom
 
 log = logging.getLogger(__name__)
 HELD_OUT_PER_TYPE = 200
@@ -90,49 +91,62 @@ def depth_ratios(pred: dict, truth: dict, robot_types: list[str]) -> dict[str, f
     return out
 
 
-@torch.no_grad()
-def held_out_points(model, config: dict, data_dir: Path, rows: np.ndarray, batch_size: int = 32) -> tuple[dict, dict]:
-    """``(pred, truth)``: the network's base, joints and type on ``rows`` (through the zoom test when
-    it was trained for it, as the fit will see them) and the labels, per-frame numpy arrays."""
-    frames = LabelledFrames(Path(data_dir), rows)
-    counts = [get_robot(t).num_joints for t in frames.robot_types]
-    zoom, settings = trained_for_zoom(config), settings_from_config(config)
-    threshold = float(getattr(model, "mask_threshold", 0.0))
-    parts = {"joints": [], "base": [], "type": []}
-    for start in range(0, len(frames), batch_size):
-        items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
-        images = torch.stack([it["image"] for it in items]).contiguous(memory_format=torch.channels_last)
-        out = model(images)
-        if zoom:
-            cams = torch.stack([it["intrinsics"] for it in items])
-            out = zoom_refine(model, images, out, cams, settings, counts, threshold)
-        for k in ("joints", "base"):
-            parts[k].append(out[k].double().numpy())
-        parts["type"].append(out["type_logits"].argmax(1).numpy())
-    arrays, _ = load_dataset(Path(data_dir))
-    truth = {"joints": np.asarray(arrays["joints"][rows], np.float64), "base": np.asarray(arrays["base"][rows], np.float64),
-             "joint_valid": np.asarray(arrays["joint_valid"][rows], bool), "type": np.asarray(arrays["robot"][rows], np.int64)}
-    return {k: np.concatenate(v) for k, v in parts.items()}, truth
+def held_out_points(model, config: dict, data_dir: Path, rows: np.ndarray, batch_size: int = 32,
+                    on_mirror: bool = False) -> tuple[dict, dict]:
+    """``(pred, truth)`` of :func:`armpose.evaluate.predict_split` on ``rows``: the network's base,
+    joints and type as the fit will see them, i.e. through the zoom test when the network was
+    trained for it, and with ``on_mirror`` on the mirror test's passes (both looks mirror-averaged,
+    as ``evaluate`` with ``zoom_on_mirror`` and ``armpose predict --mirror --zoom --fit`` fit them)."""
+    from armpose.evaluate import predict_split   # here, not at the top: evaluate imports this module
+    zoom = trained_for_zoom(config)
+    pred, truth = predict_split(model, Path(data_dir), rows=rows, batch_size=batch_size, mirror=on_mirror,
+                                zoom=zoom, zoom_settings=settings_from_config(config),
+                                zoom_on_mirror=on_mirror and zoom)
+    seen = pred["zoom"] if zoom else pred["mirror"] if on_mirror else pred
+    return {k: seen[k] for k in ("joints", "base", "type")}, truth
 
 
-def add_fit_sigmas(checkpoint: Path, data_dir: Path, used_rows: np.ndarray, seed: int) -> dict:
-    """Measure the fit sigmas of ``checkpoint`` on held-out training frames of its robot types
-    (outside ``used_rows``) and store them in its ``extra.fit_sigmas`` (atomically). A checkpoint
-    that holds them already, measured by this :data:`FIT_SIGMAS_VERSION`, is left as it is (a
-    resumed, finished stage); one measured by another version is measured again. Returns the sigmas."""
-    ckpt = load_checkpoint(Path(checkpoint))
-    if "fit_sigmas" in ckpt["extra"] and ckpt["extra"].get("fit_sigmas_version") == FIT_SIGMAS_VERSION:
-        return ckpt["extra"]["fit_sigmas"]
-    model, config = load_model(Path(checkpoint))
+def measure_fit_sigmas(model, config: dict, data_dir: Path, used_rows: np.ndarray, seed: int,
+                       on_mirror: bool = False) -> tuple[np.ndarray, dict]:
+    """``(rows, sigmas)``: the held-out training rows of the checkpoint's stage robots (outside
+    ``used_rows``, :func:`held_out_rows`) and the per-type sigmas measured on them
+    (:func:`sigmas_from_predictions` of :func:`held_out_points`); nothing is written."""
     types = list(config["base"]["robot_types"])
     rows = held_out_rows(data_dir, used_rows, [types.index(r) for r in config["cfg"]["robots"]], seed)
-    sigmas = sigmas_from_predictions(*held_out_points(model, config, data_dir, rows), types) if len(rows) else {}
-    ckpt["extra"]["fit_sigmas"], ckpt["extra"]["fit_sigmas_version"] = sigmas, FIT_SIGMAS_VERSION
+    if not len(rows):
+        return rows, {}
+    return rows, sigmas_from_predictions(*held_out_points(model, config, data_dir, rows, on_mirror=on_mirror), types)
+
+
+def add_fit_sigmas(checkpoint: Path, data_dir: Path, used_rows: np.ndarray, seed: int,
+                   on_mirror: bool = False) -> dict:
+    """Measure the fit sigmas of ``checkpoint`` on held-out training frames of its robot types
+    (outside ``used_rows``; on the mirror test's passes with ``on_mirror``, see
+    :func:`held_out_points`) and store them in its ``extra.fit_sigmas`` (atomically), with
+    ``extra.fit_sigmas_on_mirror``. A checkpoint that holds them already, measured by this
+    :data:`FIT_SIGMAS_VERSION` on the same passes, is left as it is (a resumed, finished stage);
+    one measured by another version or on the other passes is measured again. Returns the sigmas."""
+    ckpt = load_checkpoint(Path(checkpoint))
+    extra = ckpt["extra"]
+    if ("fit_sigmas" in extra and extra.get("fit_sigmas_version") == FIT_SIGMAS_VERSION
+            and bool(extra.get("fit_sigmas_on_mirror", False)) == bool(on_mirror)):
+        return extra["fit_sigmas"]
+    model, config = load_model(Path(checkpoint))
+    rows, sigmas = measure_fit_sigmas(model, config, data_dir, used_rows, seed, on_mirror)
+    extra["fit_sigmas"], extra["fit_sigmas_version"] = sigmas, FIT_SIGMAS_VERSION
+    extra["fit_sigmas_on_mirror"] = bool(on_mirror)
     buf = io.BytesIO()
     torch.save(ckpt, buf)
     atomic_write_bytes(Path(checkpoint), buf.getvalue())
-    log.info("%s: kinematic fit sigmas on %d held-out frames: %s", checkpoint, len(rows), sigmas)
+    log.info("%s: kinematic fit sigmas on %d held-out frames (%s passes): %s", checkpoint, len(rows),
+             "mirror-averaged" if on_mirror else "single", sigmas)
     return sigmas
+
+
+def fit_sigmas_on_mirror(checkpoint: Path) -> bool:
+    """Whether the sigmas stored in ``checkpoint`` were measured on the mirror test's passes
+    (False for checkpoints measured before the flag existed: those were single passes)."""
+    return bool(load_checkpoint(Path(checkpoint))["extra"].get("fit_sigmas_on_mirror", False))
 
 
 def checkpoint_fit_sigmas(checkpoint: Path) -> dict:

@@ -184,13 +184,18 @@ PASS_OPTIONS = {   # key: (title, column tag, description, what the latency name
 def pass_option(key: str, section: Mapping) -> tuple[str, str, str, str]:
     """``PASS_OPTIONS[key]``, told as run on the mirror test's passes when the metrics
     ``section`` of the zoom test or the fit says so (``on_mirror_test``, the evaluate stage's
-    ``zoom_on_mirror``): ``armpose predict --mirror --zoom [--fit]``."""
+    ``zoom_on_mirror``): ``armpose predict --mirror --zoom [--fit]``; the fit's caption also
+    says which passes its weights were measured on (``sigmas_on_mirror_test``)."""
     title, short, what, phrase = PASS_OPTIONS[key]
     if key in ("zoom_test", "kinematic_fit") and section.get("on_mirror_test"):
         what = (what.replace("`armpose predict --", "`armpose predict --mirror --", 1)
                 + " Every forward pass, the first and the second look, is the mirror test's: the image and its"
                   " horizontal mirror in one batch, the outputs averaged (`armpose.mirror_test.MirrorAveraged`).")
         phrase = phrase.replace("the zoom test", "the mirror and zoom tests", 1)
+    if key == "kinematic_fit" and "sigmas_on_mirror_test" in section:
+        passes = "mirror-averaged" if section["sigmas_on_mirror_test"] else "single"
+        what += (" Its per-type weights were measured after stage 2 on held-out training frames, on "
+                 f"{passes} passes (`transfer_stage2.fit_sigmas_on_mirror`, `armpose.fit_sigmas`).")
     return title, short, what, phrase
 
 

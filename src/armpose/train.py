@@ -146,11 +146,14 @@ class Plateau:
 
 
 RUNTIME_KEYS = {"threads", "num_workers", "checkpoint_every", "resume"}
+AFTER_TRAINING_KEYS = {"fit_sigmas", "fit_sigmas_on_mirror"}   # what the stage measures once trained
 
 
 def _identity(config: dict) -> dict:
-    """The settings that decide a run's result (not threads, workers or checkpoint cadence)."""
-    return {part: {k: v for k, v in config[part].items() if k not in RUNTIME_KEYS} if isinstance(config[part], dict)
+    """The settings that decide a run's trained weights (not threads, workers or checkpoint
+    cadence, nor what is measured after training: the fit sigmas of :mod:`armpose.fit_sigmas`)."""
+    ignored = RUNTIME_KEYS | AFTER_TRAINING_KEYS
+    return {part: {k: v for k, v in config[part].items() if k not in ignored} if isinstance(config[part], dict)
             else config[part] for part in config}
 
 

@@ -28,6 +28,7 @@ import torch
 
 from armpose.config import load_params, project_root
 from armpose.evaluate import evaluate_checkpoint, family_of, pixel_scale_of
+from armpose.fit_sigmas import fit_sigmas_on_mirror
 from armpose.inference import load_inference_model
 from armpose.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from armpose.kinematic_fit import FitSettings
@@ -178,6 +179,12 @@ def run(params: dict, root: Path | None = None) -> dict:
         for key in ("zoom_test", "kinematic_fit"):
             if key in m:
                 m[key]["on_mirror_test"] = bool(cfg.get("zoom_on_mirror", False))
+        if "kinematic_fit" in m:
+            m["kinematic_fit"]["sigmas_on_mirror_test"] = sigmas_on_mirror = fit_sigmas_on_mirror(root / ckpt)
+            if sigmas_on_mirror != m["kinematic_fit"]["on_mirror_test"]:
+                log.warning("%s: the fit's weights were measured on %s passes but evaluate fits %s ones; set "
+                            "transfer_stage2.fit_sigmas_on_mirror to evaluate.zoom_on_mirror", ckpt,
+                            *(("mirror-averaged", "single") if sigmas_on_mirror else ("single", "mirror-averaged")))
         metrics[name] = {"checkpoint": ckpt, "test": m}
         preds[name] = (pred, truth)
     for name, pred_truth in preds.items():

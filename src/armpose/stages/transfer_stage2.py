@@ -2,7 +2,9 @@
 
 Reads ``params["base"]`` and ``params["transfer_stage2"]``; see :mod:`armpose.stages.training`.
 With ``fit_sigmas: true``, the kinematic fit's weights are then measured per robot type on
-held-out training frames and stored in the checkpoint (:mod:`armpose.fit_sigmas`).
+held-out training frames and stored in the checkpoint (:mod:`armpose.fit_sigmas`); with
+``fit_sigmas_on_mirror: true`` on the mirror test's passes, the estimates that ``evaluate``
+with ``zoom_on_mirror`` and ``armpose predict --mirror --zoom --fit`` fit.
 """
 from pathlib import Path
 
@@ -18,7 +20,8 @@ def measure_fit_sigmas(cfg: dict, base: dict, root: Path, out: Path) -> dict:
         return {}
     data = root / "data" / "labels"
     used = training_rows(load_dataset(data)[0], cfg, base)
-    return {"fit_sigmas": add_fit_sigmas(out / "model.pt", data, used, int(base["seed"]))}
+    return {"fit_sigmas": add_fit_sigmas(out / "model.pt", data, used, int(base["seed"]),
+                                         on_mirror=bool(cfg.get("fit_sigmas_on_mirror", False)))}
 
 
 run, main = stage_functions("transfer_stage2", __doc__, after=measure_fit_sigmas)
