@@ -31,7 +31,7 @@ def test_stage1_keeps_frozen_layers_bit_identical(tiny_project, tmp_path, caplog
     params = quick(tparams)
     pretrain.run(params, tmp_path)
     before = _weights(tmp_path / "models" / "pretrain" / "model.pt")
-    transfer_stage1.run(params, tmp_path)
+    first = transfer_stage1.run(params, tmp_path)
     after = _weights(tmp_path / "models" / "transfer_stage1" / "model.pt")
     trainable = set(params["transfer_stage1"]["trainable"])
     changed = {k for k in before if not torch.equal(before[k], after[k])}
@@ -44,18 +44,24 @@ def test_stage1_keeps_frozen_layers_bit_identical(tiny_project, tmp_path, caplog
     # a finished stage run again is left exactly as it was
     stage1 = tmp_path / "models" / "transfer_stage1"
     files = {p.name: p.read_bytes() for p in stage1.glob("*.pt")}
-    transfer_stage1.run(params, tmp_path)
+    caplog.clear()
+    with caplog.at_level("INFO"):
+        again = transfer_stage1.run(params, tmp_path)
     assert {p.name: p.read_bytes() for p in stage1.glob("*.pt")} == files
+    assert again == first and first["feature_cache"] and first["feature_cache_s"] > 0   # its summary too
+    assert "cached trunk features" not in caplog.text                              # without caching again
     # what stage 2 measures after training changes: the weights stay, the sigmas are measured again
     stage2 = tmp_path / "models" / "transfer_stage2" / "model.pt"
     trained = load_checkpoint(stage2)
-    assert params["transfer_stage2"]["fit_sigmas"] and not trained["extra"].get("fit_sigmas_on_mirror", False)
-    params["transfer_stage2"]["fit_sigmas_on_mirror"] = True
+    measured_on_mirror = trained["extra"]["fit_sigmas_on_mirror"]
+    assert params["transfer_stage2"]["fit_sigmas"] and measured_on_mirror == params["transfer_stage2"]["fit_sigmas_on_mirror"]
+    params["transfer_stage2"]["fit_sigmas_on_mirror"] = not measured_on_mirror
+    caplog.clear()
     with caplog.at_level("INFO", logger="armpose.train"):
         transfer_stage2.run(params, tmp_path)
     assert "resuming" in caplog.text and "starting afresh" not in caplog.text
     again = load_checkpoint(stage2)
-    assert again["step"] == trained["step"] and again["extra"]["fit_sigmas_on_mirror"]
+    assert again["step"] == trained["step"] and again["extra"]["fit_sigmas_on_mirror"] != measured_on_mirror
     assert all(torch.equal(again["model"][k], v) for k, v in trained["model"].items())
 
 

@@ -298,10 +298,12 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
         model.set_mask_prior(foreground_fraction(arrays, rows))   # the decision rule of this training set
     cached = bool(cfg.get("feature_cache", True)) and trunk_is_frozen(cfg["trainable"])
     low_res = check_stage_low_res(stage, cfg, cached)
-    cache_s = time.perf_counter()
-    if cached:  # the trunk never changes in this run: compute its features once
+    done = ckpt is not None and bool(ckpt["extra"].get("finished")) and (out_dir / "model.pt").exists()
+    cache_s = float(ckpt["extra"].get("feature_cache_s", 0.0)) if ckpt else 0.0   # earlier sessions of this run
+    if cached and not done:  # the trunk never changes in this run: compute its features once
+        started = time.perf_counter()
         train_ds = cache_trunk_features(model, train_ds, device, disable_bar=not master)
-    cache_s = time.perf_counter() - cache_s
+        cache_s += time.perf_counter() - started
     loader = make_loader(train_ds, bs, shuffle=True, seed=seed, num_workers=0 if cached else int(cfg.get("num_workers", 1)),
                          drop_last=True, distributed=world > 1)
     teacher = _teacher(cfg, base, cached, device)
@@ -323,7 +325,8 @@ def train(stage: str, cfg: dict, base: dict, data_dir: Path, out_dir: Path) -> d
     def checkpoint(path: Path) -> None:
         if master:
             extra = {"history": history, "elapsed": elapsed + time.perf_counter() - t0,
-                     "plateau": plateau.state if plateau else None, "finished": finished}
+                     "plateau": plateau.state if plateau else None, "finished": finished,
+                     "feature_cache_s": cache_s}
             save_checkpoint(path, model, optimizer, None, step, stage, config, extra)
             write_history(out_dir / "history.csv", history)
 
