@@ -38,9 +38,10 @@ from armpose.config import deep_merge, load_params, override_from_text, project_
 from armpose.evaluate import evaluate_checkpoint
 from armpose.io import atomic_write_json
 from armpose.kinematic_fit import FitSettings
-from armpose.stages.training import run_stage
+from armpose.stages import transfer_stage1, transfer_stage2
 
 STAGES = ("transfer_stage1", "transfer_stage2")
+STAGE_RUNS = (transfer_stage1.run, transfer_stage2.run)   # the pipeline's own: stage 2 measures its fit sigmas
 FIGURES = ("joint_median_cm", "base_median_cm", "type_accuracy", "mask_accuracy")
 
 
@@ -64,6 +65,15 @@ def link_project(root: Path, work: Path) -> None:
     for rel in ("data", "models/pretrain"):
         if not (work / rel).exists():
             os.symlink((root / rel).resolve(), work / rel)
+
+
+def train_seed(params: dict, work: Path) -> None:
+    """Both transfer stages in ``work`` with ``params``, through the stages' own ``run`` (as
+    ``dvc repro`` runs them), so stage 2 also measures and stores the kinematic fit's weights
+    (``transfer_stage2.fit_sigmas``, on the passes ``fit_sigmas_on_mirror`` names). A finished
+    seed only has them measured, if its checkpoint lacks them."""
+    for run in STAGE_RUNS:
+        run(params, work)
 
 
 def family_scores(metrics: dict, steps: int | None) -> dict:
@@ -116,8 +126,7 @@ def main() -> None:
         work = root / "models" / "transfer_seeds" / tag / f"seed_{seed}"
         link_project(root, work)
         p = seed_params(params, seed, args.overrides)
-        for stage in STAGES:
-            run_stage(stage, p, work)
+        train_seed(p, work)
         runs[f"seed_{seed}"] = {**score(work / "models" / "transfer_stage2", root, p["base"], on_mirror),
                                 "seed_offset": seed}
         print(f"seed {seed}:", json.dumps(runs[f"seed_{seed}"]["by_family"]))
