@@ -157,8 +157,9 @@ if "zoom_test" in metrics["transfer"]["test"]:
 # kinematics) is posed, by Levenberg-Marquardt over the joint angles and the camera-from-base
 # pose, so that its base and joints lie on the zoom test's rays and near their depths
 # (`armpose.kinematic_fit`, `armpose predict --zoom --fit`). The weights are measured per robot
-# type on held-out *training* frames after stage 2 and stored in the checkpoint
-# (`armpose.fit_sigmas`); the test split never chooses them. No encoders or calibration: the
+# type on held-out *training* frames after stage 2, through the same passes the fit will see
+# (`transfer_stage2.fit_sigmas_on_mirror`), and stored in the checkpoint (`armpose.fit_sigmas`);
+# the test split never chooses them. No encoders or calibration: the
 # joint angles and the camera pose come out of it. `evaluate.headline` picks which variant the
 # first table reports; the sections compare each variant with the single pass.
 
