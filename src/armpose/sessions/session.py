@@ -92,7 +92,7 @@ from armpose.sim.body import RobotBody
 from armpose.sim.camera import FAR, NEAR, projection_matrix, view_matrix
 from armpose.sessions.motion import handheld_camera, robot_motion, tripod_camera
 from armpose.sim.render import jittered_color, load_other_robot, place_other_robot
-from armpose.sim.scene import SceneRandomizer, camera_effects
+from armpose.sim.scene import SceneRandomizer, camera_effects, lookalike_colors
 
 log = logging.getLogger(__name__)
 
@@ -306,7 +306,8 @@ def record_session(job: SessionJob) -> int:
     tmp = Path(tempfile.mkdtemp(prefix=f".{job.out_dir.name}.", dir=job.out_dir.parent))
     try:
         body = RobotBody(client, spec, kin, self_collision=True)
-        scene = SceneRandomizer(client, rng, rcfg, spec.reach, max(cfg["camera"]["distance"]))
+        scene = SceneRandomizer(client, rng, rcfg, spec.reach, max(cfg["camera"]["distance"]),
+                                lookalike_colors(spec.appearance))
         other = load_other_robot(client, job, rng)
         support = scene.new_scene()
         _color_robot(body, rcfg, rng)

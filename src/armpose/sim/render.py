@@ -23,7 +23,7 @@ from armpose.sim.body import RobotBody
 from armpose.sim.background import composite, depth_from_buffer, pixel_rays, render_planes
 from armpose.sim.camera import FAR, NEAR, projection_matrix, view_matrix
 from armpose.sim.sampling import collision_free_configuration, sample_camera_pose
-from armpose.sim.scene import SceneRandomizer, camera_effects
+from armpose.sim.scene import SceneRandomizer, camera_effects, lookalike_colors
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,7 +99,8 @@ def render_recording(job: RenderJob) -> int:
     tmp = Path(tempfile.mkdtemp(prefix=f".{job.out_dir.name}.", dir=job.out_dir.parent))
     try:
         body = RobotBody(client, spec, kin, self_collision=True)
-        scene = SceneRandomizer(client, rng, rcfg, spec.reach, max(job.cfg["camera"]["distance"]))
+        scene = SceneRandomizer(client, rng, rcfg, spec.reach, max(job.cfg["camera"]["distance"]),
+                                lookalike_colors(spec.appearance))
         other = load_other_robot(client, job, rng)
         proj = projection_matrix(camera)
         rays = pixel_rays(camera)

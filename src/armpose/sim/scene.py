@@ -22,6 +22,13 @@ def _uniform(rng: np.random.Generator, lo_hi) -> float:
     return float(rng.uniform(lo, hi))
 
 
+def lookalike_colors(appearance) -> list[tuple[float, ...]]:
+    """The distinct RGBA colours of a robot description's ``appearance`` (its default colour, when
+    it sets one, and its per-link colours): what :class:`SceneRandomizer` paints look-alikes in."""
+    colors = ([appearance.default_color] if appearance.default_color else []) + list(appearance.link_colors.values())
+    return list(dict.fromkeys(tuple(float(v) for v in c) for c in colors))
+
+
 class SceneRandomizer:
     """Builds and re-builds the background of one PyBullet client.
 
@@ -29,10 +36,18 @@ class SceneRandomizer:
     ray-cast in numpy); table, distractors and other robots are PyBullet bodies.
 
     ``cfg`` is ``params['render']['randomize']``; ``reach`` is the robot's reach in metres.
+    ``lookalike_colors`` (RGBA in [0, 1], the robot's own link colours: :func:`lookalike_colors`)
+    are hard negatives: with probability ``background.lookalike_prob`` (0 by default: no draw
+    at all, so scenes stay exactly as before) a table or distractor is plain-coloured in one of
+    them (brightness jittered by +-15 %) instead of a random colour or texture, so the network
+    must tell the robot from scene surfaces that look like its links by shape.
     """
 
-    def __init__(self, client: int, rng: np.random.Generator, cfg: dict, reach: float, max_camera_distance: float):
+    def __init__(self, client: int, rng: np.random.Generator, cfg: dict, reach: float, max_camera_distance: float,
+                 lookalike_colors: list[tuple[float, ...]] | None = None):
         self.client, self.rng, self.cfg, self.reach = client, rng, cfg, reach
+        self.lookalike_colors = [tuple(c) for c in (lookalike_colors or [])]
+        self.lookalike_prob = float(cfg["background"].get("lookalike_prob", 0.0)) if self.lookalike_colors else 0.0
         self.wall_distance = max_camera_distance + reach + 0.5  # walls never stand between camera and robot
         self.bodies: list[int] = []
         self.support: int | None = None
@@ -63,12 +78,21 @@ class SceneRandomizer:
     def _color(self) -> list[float]:
         return [*self.rng.uniform(0.05, 1.0, 3).tolist(), 1.0]
 
+    def _surface(self) -> tuple[list[float], bool]:
+        """``(rgba, lookalike)``: one of the robot's colours with probability ``lookalike_prob``
+        (never drawn when it is 0), else a random colour."""
+        if self.lookalike_prob > 0 and self.rng.uniform() < self.lookalike_prob:
+            base = np.asarray(self.lookalike_colors[self.rng.integers(len(self.lookalike_colors))][:3])
+            return [*np.clip(base * self.rng.uniform(0.85, 1.15), 0, 1).tolist(), 1.0], True
+        return self._color(), False
+
     def _box(self, half, pos, collide: bool = False, yaw: float = 0.0) -> int:
         c = self.client
-        vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=self._color(), physicsClientId=c)
+        color, lookalike = self._surface()
+        vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=color, physicsClientId=c)
         col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=c) if collide else -1
         body = pb.createMultiBody(0, col, vis, pos, pb.getQuaternionFromEuler([0, 0, yaw]), physicsClientId=c)
-        if self.textures and self.rng.uniform() < 0.7:
+        if not lookalike and self.textures and self.rng.uniform() < 0.7:
             tex = self.textures[self.rng.integers(len(self.textures))]
             pb.changeVisualShape(body, -1, textureUniqueId=tex, rgbaColor=[1, 1, 1, 1], physicsClientId=c)
         self.bodies.append(body)
@@ -79,12 +103,12 @@ class SceneRandomizer:
         size = self.rng.uniform(0.04, 0.25)
         if kind == 0:
             vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=self.rng.uniform(0.03, 0.25, 3).tolist(),
-                                       rgbaColor=self._color(), physicsClientId=c)
+                                       rgbaColor=self._surface()[0], physicsClientId=c)
         elif kind == 1:
-            vis = pb.createVisualShape(pb.GEOM_SPHERE, radius=size, rgbaColor=self._color(), physicsClientId=c)
+            vis = pb.createVisualShape(pb.GEOM_SPHERE, radius=size, rgbaColor=self._surface()[0], physicsClientId=c)
         else:
             vis = pb.createVisualShape(pb.GEOM_CYLINDER, radius=size, length=self.rng.uniform(0.1, 0.8),
-                                       rgbaColor=self._color(), physicsClientId=c)
+                                       rgbaColor=self._surface()[0], physicsClientId=c)
         orn = pb.getQuaternionFromEuler(self.rng.uniform(-np.pi, np.pi, 3).tolist())
         self.bodies.append(pb.createMultiBody(0, -1, vis, pos, orn, physicsClientId=c))
 
