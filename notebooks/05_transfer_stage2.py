@@ -134,7 +134,7 @@ print(viz.format_table(summary, percent=("val_type_acc", "val_mask_acc")))
 # A second draw of the 500 frames per robot type gives a different network. To see how far the
 # test scores move between such draws, `python benchmarks/transfer_seeds.py` trains stages 1
 # and 2 again from the same pretrained network with other seed offsets and scores each
-# (`results/transfer_seeds.json`; README, "Seeds of the transfer stages"). Over the three seeds of
-# the last default run, each with its own measured fit weights, the joint medians moved by 0.27 cm
+# (README, "Seeds of the transfer stages"). Over the three seeds of the run before the look-alike
+# surfaces, each with its own measured fit weights, the joint medians moved by 0.27 cm
 # (UR), 1.10 cm (KUKA) and 1.01 cm (Panda) and UR's type accuracy by 0.58 points: read a difference
 # between two settings against that before believing it.
