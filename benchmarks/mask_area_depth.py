@@ -28,7 +28,7 @@ import json
 import numpy as np
 
 from armpose.config import load_params
-from armpose.data import LabelledFrames, split_indices
+from armpose.data import split_indices
 from armpose.evaluate import family_of, predict_split
 from armpose.fit_sigmas import checkpoint_fit_sigmas
 from armpose.io import atomic_write_json
@@ -67,12 +67,6 @@ def group_summary(ratios: dict[str, np.ndarray], joint_err: np.ndarray, joint_va
     return out
 
 
-def true_masks(data_dir, rows: np.ndarray) -> np.ndarray:
-    """The labelled masks of ``rows`` in network-input pixels, boolean (N, H, W)."""
-    frames = LabelledFrames(data_dir, rows)
-    return np.stack([frames[i]["mask"].numpy() > 0.5 for i in range(len(rows))])
-
-
 def main() -> None:
     args, root, model, config = load_checkpoint_from_cli(__doc__)
     data_dir, params = root / "data" / "labels", load_params(root / "params.yaml")
@@ -84,7 +78,7 @@ def main() -> None:
                                 zoom_settings=settings_from_config(config), fit=FitSettings(),
                                 fit_sigmas=checkpoint_fit_sigmas(root / args.checkpoint),
                                 zoom_on_mirror=on_mirror, keep_masks=True)
-    ratios = frame_ratios(pred["zoom"]["masks"], true_masks(data_dir, rows), pred["fit"]["joints"],
+    ratios = frame_ratios(pred["zoom"]["masks"], truth["masks"], pred["fit"]["joints"],
                           truth["joints"], truth["joint_valid"])
     err = np.linalg.norm(pred["fit"]["joints"] - truth["joints"], axis=-1)
     family = np.array(family_of(types))[truth["type"]]

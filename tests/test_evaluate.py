@@ -29,13 +29,14 @@ def test_kept_masks_are_the_ones_scored(untrained):
     with torch.no_grad():   # the median logit as the threshold: an untrained network's masks then hold both values
         logits = model(torch.stack([frames[i]["image"] for i in range(len(frames))]))["mask_logits"]
         model.mask_threshold.fill_(float(logits.median()))
-    pred, _ = predict_split(model, data_dir, rows=rows, batch_size=2, keep_masks=True)
+    pred, labelled = predict_split(model, data_dir, rows=rows, batch_size=2, keep_masks=True)
     truth = np.stack([frames[i]["mask"].numpy() > 0.5 for i in range(len(frames))])
+    np.testing.assert_array_equal(labelled["masks"], truth)                        # the labels, kept too
     assert pred["masks"].dtype == bool and pred["masks"].shape == truth.shape
     assert 0 < pred["masks"].mean() < 1          # neither all robot nor all background: the check below can fail
     np.testing.assert_array_equal(mask_counts(pred["masks"], truth), pred["mask_counts"])
-    plain, _ = predict_split(model, data_dir, rows=rows, batch_size=2)
-    assert "masks" not in plain
+    plain, plain_truth = predict_split(model, data_dir, rows=rows, batch_size=2)
+    assert "masks" not in plain and "masks" not in plain_truth
     np.testing.assert_array_equal(plain["mask_counts"], pred["mask_counts"])
 
 

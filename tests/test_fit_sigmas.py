@@ -77,9 +77,9 @@ def test_add_fit_sigmas_measures_held_out_frames_and_stores_them_once(tiny_proje
 
 def test_add_fit_sigmas_on_mirror_measures_the_mirror_tests_zoom_estimates(tiny_project, tmp_path):
     from armpose.evaluate import predict_split
-    from armpose.fit_sigmas import add_fit_sigmas, fit_sigmas_on_mirror, held_out_rows
+    from armpose.fit_sigmas import add_fit_sigmas, held_out_rows
     from armpose.model import build_model
-    from armpose.train import save_checkpoint
+    from armpose.train import load_checkpoint, save_checkpoint
     from armpose.zoom_test import settings_from_config
     root, tparams = tiny_project
     data = root / "data" / "labels"
@@ -96,6 +96,9 @@ def test_add_fit_sigmas_on_mirror_measures_the_mirror_tests_zoom_estimates(tiny_
     used = split_indices(arrays, "train")[::2]
     rows = held_out_rows(data, used, [0, 4], seed=0)
     types = list(base["robot_types"])
+
+    def fit_sigmas_on_mirror(path):
+        return load_checkpoint(path)["extra"]["fit_sigmas_on_mirror"]
 
     def expected(on_mirror):
         pred, truth = predict_split(model, data, rows=rows, mirror=on_mirror, zoom=True,

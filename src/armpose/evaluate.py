@@ -16,7 +16,6 @@ import torch
 from tqdm import tqdm
 
 from armpose.data import LabelledFrames, split_indices
-from armpose.fit_sigmas import checkpoint_fit_sigmas
 from armpose.kinematic_fit import FitSettings, fit_predictions
 from armpose.labels.dataset import SOURCE_CODES, load_dataset
 from armpose.metrics import confusion_matrix, mask_counts, summarise
@@ -47,13 +46,15 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
     those of the kinematic fit (:mod:`armpose.kinematic_fit`) to the zoom test's outputs (the
     single pass's without ``zoom``; per-type weights ``fit_sigmas``, :mod:`armpose.fit_sigmas`),
     plus its joint angles ``q`` and poses ``T_cam_base``. With ``keep_masks``, each set also holds
-    ``masks`` (N, H, W) bool, the predicted masks in network-input pixels."""
+    ``masks`` (N, H, W) bool, the predicted masks in network-input pixels, and ``truth["masks"]``
+    the labelled ones."""
     if zoom_on_mirror and not (zoom and mirror):
         raise ValueError("zoom_on_mirror runs the zoom test on the mirror test's passes: it needs zoom and mirror")
     arrays, _ = load_dataset(Path(data_dir))
     rows = split_indices(arrays, split) if rows is None else np.asarray(rows, np.int64)
     frames = LabelledFrames(Path(data_dir), rows)
     single, averaged, zoomed = _Collected(keep_masks), _Collected(keep_masks), _Collected(keep_masks)
+    true_masks = []
     if zoom:
         threshold = float(getattr(model, "mask_threshold", 0.0))
         joint_counts = [get_robot(t).num_joints for t in frames.robot_types]
@@ -61,6 +62,8 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
         items = [frames[i] for i in range(start, min(start + batch_size, len(frames)))]
         images = torch.stack([it["image"] for it in items]).to(device)
         masks = torch.stack([it["mask"] for it in items]).numpy() > 0.5
+        if keep_masks:
+            true_masks.append(masks)
         intrinsics = torch.stack([it["intrinsics"] for it in items]).to(device)
         if mirror:
             out, mean = forward_with_mirror(model, images, intrinsics[:, 0], intrinsics[:, 2])
@@ -89,6 +92,8 @@ def predict_split(model, data_dir: Path, split: str = "test", batch_size: int = 
              "source": np.asarray(arrays["source"][rows], np.int64),
              "recording": np.asarray(arrays["recording"][rows], np.int64),
              "row": rows}
+    if keep_masks:
+        truth["masks"] = np.concatenate(true_masks) if true_masks else np.zeros((0, 0, 0), bool)
     return pred, truth
 
 
@@ -172,16 +177,20 @@ def evaluate_checkpoint(checkpoint: Path, data_dir: Path, base: dict, split: str
     ``pred["mirror"]`` its predictions; with ``zoom``,
     ``metrics["zoom_test"]`` and ``pred["zoom"]`` likewise for the zoom test (:mod:`armpose.zoom_test`,
     its settings from the checkpoint's config; on the mirror test's passes with ``zoom_on_mirror``); with ``fit``, ``metrics["kinematic_fit"]`` and
-    ``pred["fit"]`` for the kinematic fit (:mod:`armpose.kinematic_fit`)."""
+    ``pred["fit"]`` for the kinematic fit (:mod:`armpose.kinematic_fit`; its ``sigmas_on_mirror_test``
+    says which passes the checkpoint's fit weights were measured on)."""
     model, config = load_inference_model(checkpoint, device)
+    extra = load_checkpoint(checkpoint)["extra"] if fit is not None else {}
     pred, truth = predict_split(model, data_dir, split, batch_size, device, mirror=mirror, zoom=zoom,
                                 zoom_settings=settings_from_config(config), fit=fit, zoom_on_mirror=zoom_on_mirror,
-                                fit_sigmas=checkpoint_fit_sigmas(checkpoint) if fit is not None else None)
+                                fit_sigmas=dict(extra.get("fit_sigmas", {})) if fit is not None else None)
     metrics = metrics_by_group(pred, truth, list(base["robot_types"]), pixel_scale_of(base, truth))
     for key, name in (("mirror", "mirror_test"), ("zoom", "zoom_test"), ("fit", "kinematic_fit")):
         if key in pred:
             both = metrics_by_group(pred[key], truth, list(base["robot_types"]), pixel_scale_of(base, truth))
             metrics[name] = {k: both[k] for k in ("all", "by_family", "by_type", "by_source", "confusion")}
+    if "kinematic_fit" in metrics:   # which passes the fit's weights were measured on (armpose.fit_sigmas)
+        metrics["kinematic_fit"]["sigmas_on_mirror_test"] = bool(extra.get("fit_sigmas_on_mirror", False))
     log.info("%s on %s: %s", checkpoint, split, {k: metrics["by_family"][k].get("joint_median_cm")
                                                  for k in metrics["by_family"]})
     return metrics, pred, truth

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from armpose.data import split_indices
+from armpose.evaluate import predict_split
 from armpose.io import atomic_write_bytes
 from armpose.labels.dataset import load_dataset
 from armpose.metrics import frame_depth_ratio
@@ -97,7 +98,6 @@ def held_out_points(model, config: dict, data_dir: Path, rows: np.ndarray, batch
     joints and type as the fit will see them, i.e. through the zoom test when the network was
     trained for it, and with ``on_mirror`` on the mirror test's passes (both looks mirror-averaged,
     as ``evaluate`` with ``zoom_on_mirror`` and ``armpose predict --mirror --zoom --fit`` fit them)."""
-    from armpose.evaluate import predict_split   # here, not at the top: evaluate imports this module
     zoom = trained_for_zoom(config)
     pred, truth = predict_split(model, Path(data_dir), rows=rows, batch_size=batch_size, mirror=on_mirror,
                                 zoom=zoom, zoom_settings=settings_from_config(config),
@@ -141,12 +141,6 @@ def add_fit_sigmas(checkpoint: Path, data_dir: Path, used_rows: np.ndarray, seed
     log.info("%s: kinematic fit sigmas on %d held-out frames (%s passes): %s", checkpoint, len(rows),
              "mirror-averaged" if on_mirror else "single", sigmas)
     return sigmas
-
-
-def fit_sigmas_on_mirror(checkpoint: Path) -> bool:
-    """Whether the sigmas stored in ``checkpoint`` were measured on the mirror test's passes
-    (False for checkpoints measured before the flag existed: those were single passes)."""
-    return bool(load_checkpoint(Path(checkpoint))["extra"].get("fit_sigmas_on_mirror", False))
 
 
 def checkpoint_fit_sigmas(checkpoint: Path) -> dict:

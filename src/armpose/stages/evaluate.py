@@ -28,7 +28,6 @@ import torch
 
 from armpose.config import load_params, project_root
 from armpose.evaluate import evaluate_checkpoint, family_of, pixel_scale_of
-from armpose.fit_sigmas import fit_sigmas_on_mirror
 from armpose.inference import load_inference_model
 from armpose.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from armpose.kinematic_fit import FitSettings
@@ -180,7 +179,7 @@ def run(params: dict, root: Path | None = None) -> dict:
             if key in m:
                 m[key]["on_mirror_test"] = bool(cfg.get("zoom_on_mirror", False))
         if "kinematic_fit" in m:
-            m["kinematic_fit"]["sigmas_on_mirror_test"] = sigmas_on_mirror = fit_sigmas_on_mirror(root / ckpt)
+            sigmas_on_mirror = m["kinematic_fit"]["sigmas_on_mirror_test"]
             if sigmas_on_mirror != m["kinematic_fit"]["on_mirror_test"]:
                 log.warning("%s: the fit's weights were measured on %s passes but evaluate fits %s ones; set "
                             "transfer_stage2.fit_sigmas_on_mirror to evaluate.zoom_on_mirror", ckpt,
